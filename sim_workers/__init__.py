@@ -1,0 +1,1 @@
+"""sim_workers package of the TMOC service."""
