@@ -1,0 +1,339 @@
+"""Belief over the objects' unknown continuous properties L: a weighted particle filter.
+
+Each row of ``particles`` is one hypothesis L_i (for the container domain: block side
+lengths in metres). Weights live in log space so that long runs of small likelihoods never
+underflow. Pure numpy + stdlib; every random draw comes from the generator passed in.
+
+Choices this module makes (and the rest of the loop can rely on):
+
+* **Degenerate updates.** If a likelihood update gives every particle probability zero
+  (all ``-inf`` in log space), the weights are left as they were, ``degenerate_updates``
+  is incremented and ``last_update_degenerate`` is set. Nothing becomes NaN; the caller
+  can log the flag (it means the observation model's error rate is too small, or the
+  real world did something no particle can explain).
+* **Resampling** is systematic (one uniform draw), triggered when ESS < threshold * N.
+  Rows of surviving particles stay in place, bit-identical; the extra copies of a
+  particle go to the rows of particles that died. So a shard holding one world per row
+  only rebuilds the worlds of rows that changed.
+* **Jitter** is applied to the extra copies only (the first copy of each survivor is kept
+  exactly, so no information is thrown away and duplicates still become distinct). Its
+  per-dimension std is ``max(jitter * posterior_std_d, jitter_floor * (high_d - low_d))``,
+  posterior std being the weighted std before resampling. The default ``jitter = 0.1``
+  inflates the posterior variance by about 1 %, negligible; the floor keeps copies distinct
+  when the posterior has collapsed onto one particle. Jittered values are reflected at the
+  prior bounds (a triangle wave, so any magnitude lands inside) and then clipped against
+  rounding, so a particle never leaves [low, high].
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any, Sequence
+
+import numpy as np
+
+__all__ = [
+    "Belief",
+    "symbolic_log_likelihood",
+    "gaussian_log_likelihood",
+    "systematic_resample",
+    "logsumexp",
+]
+
+_LOG_2PI = math.log(2.0 * math.pi)
+
+
+def logsumexp(a: np.ndarray) -> float:
+    """log(sum(exp(a))) without overflow; -inf when every entry is -inf."""
+    a = np.asarray(a, dtype=np.float64)
+    m = float(np.max(a)) if a.size else -math.inf
+    if m == -math.inf:
+        return -math.inf
+    return m + math.log(float(np.sum(np.exp(a - m))))
+
+
+def _normalised(log_w: np.ndarray) -> np.ndarray:
+    """Shift log weights so that logsumexp == 0 (caller guarantees one finite entry)."""
+    return log_w - logsumexp(log_w)
+
+
+def systematic_resample(weights: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """Ancestor indices (N,), sorted, by systematic resampling with one uniform draw.
+
+    Particle i is drawn floor(N w_i) or ceil(N w_i) times: the N points u0 + k/N hit an
+    interval of length w_i of the cumulative sum that many times.
+    """
+    w = np.asarray(weights, dtype=np.float64)
+    n = w.shape[0]
+    cum = np.cumsum(w / w.sum())
+    cum[-1] = 1.0  # rounding in cumsum must not leave the last point without a bin
+    positions = (rng.random() + np.arange(n)) / n
+    return np.searchsorted(cum, positions, side="right").astype(np.int64)
+
+
+def _reflect_into(x: np.ndarray, low: np.ndarray, high: np.ndarray) -> np.ndarray:
+    """Fold values into [low, high] by mirror reflection at the bounds (any distance)."""
+    width = high - low
+    y = np.mod(x - low, 2.0 * width)
+    y = np.where(y > width, 2.0 * width - y, y)
+    return np.clip(low + y, low, high)
+
+
+@dataclass(eq=False)  # arrays inside: element-wise == would be ambiguous
+class Belief:
+    """N weighted particles over D continuous properties with a uniform prior on [low, high]."""
+
+    particles: np.ndarray  # (N, D) float64
+    log_weights: np.ndarray  # (N,) normalised: logsumexp == 0
+    low: np.ndarray  # (D,)
+    high: np.ndarray  # (D,)
+    degenerate_updates: int = 0  # how many updates were all -inf and got ignored
+    last_update_degenerate: bool = False
+
+    def __post_init__(self) -> None:
+        self.particles = np.array(self.particles, dtype=np.float64, ndmin=2)
+        self.log_weights = np.array(self.log_weights, dtype=np.float64).reshape(-1)
+        self.low = np.array(self.low, dtype=np.float64).reshape(-1)
+        self.high = np.array(self.high, dtype=np.float64).reshape(-1)
+        n, d = self.particles.shape
+        if n < 1:
+            raise ValueError("particles: need at least one particle")
+        if self.log_weights.shape != (n,):
+            raise ValueError(f"log_weights: shape {self.log_weights.shape}, expected ({n},)")
+        if self.low.shape != (d,) or self.high.shape != (d,):
+            raise ValueError(f"low/high: shapes {self.low.shape}/{self.high.shape}, expected ({d},)")
+        if not np.all(self.low < self.high):
+            raise ValueError("low/high: every low must be below its high")
+        if np.any(np.isnan(self.log_weights)) or np.any(self.log_weights == math.inf):
+            raise ValueError("log_weights: NaN or +inf")
+        if np.all(self.log_weights == -math.inf):
+            raise ValueError("log_weights: every weight is zero")
+
+    # ----------------------------------------------------------------- construction
+    @classmethod
+    def from_prior(
+        cls, n: int, low: Any, high: Any, rng: np.random.Generator
+    ) -> "Belief":
+        """N particles drawn uniformly on [low, high) per dimension, uniform weights."""
+        if int(n) < 1:
+            raise ValueError(f"n: need at least one particle, got {n}")
+        low_a = np.array(low, dtype=np.float64).reshape(-1)
+        high_a = np.array(high, dtype=np.float64).reshape(-1)
+        if low_a.shape != high_a.shape:
+            raise ValueError(f"low/high: shapes differ ({low_a.shape} vs {high_a.shape})")
+        if not np.all(low_a < high_a):
+            raise ValueError("low/high: every low must be below its high")
+        n = int(n)
+        particles = low_a + (high_a - low_a) * rng.random((n, low_a.shape[0]))
+        return cls(particles, np.full(n, -math.log(n)), low_a, high_a)
+
+    # ----------------------------------------------------------------- read-outs
+    @property
+    def n(self) -> int:
+        return int(self.particles.shape[0])
+
+    @property
+    def dim(self) -> int:
+        return int(self.particles.shape[1])
+
+    @property
+    def weights(self) -> np.ndarray:
+        """Normalised weights (N,), summing to 1."""
+        w = np.exp(self.log_weights)
+        return w / w.sum()
+
+    def ess(self) -> float:
+        """Effective sample size 1 / sum w_i^2, in [1, N]."""
+        w = self.weights
+        return float(1.0 / np.dot(w, w))
+
+    def mean(self) -> np.ndarray:
+        """Weighted mean of the particles (D,)."""
+        return self.weights @ self.particles
+
+    def std(self) -> np.ndarray:
+        """Weighted standard deviation of the particles (D,)."""
+        w = self.weights
+        dev = self.particles - w @ self.particles
+        return np.sqrt(np.maximum(w @ (dev * dev), 0.0))
+
+    def weighted_mean(
+        self, values: np.ndarray, angular: Sequence[int] | None = None
+    ) -> np.ndarray:
+        """Weighted mean over particles of per-particle values (N,) or (N, P).
+
+        Columns in ``angular`` are averaged as angles: atan2 of the weighted sin and cos,
+        so yaws near +pi and -pi average to about pi, not 0. ``None`` (default) means
+        column 3 (yaw of x, y, z, yaw, ...) when there is one, else none; pass ``()`` for
+        a purely linear mean.
+        """
+        v = np.asarray(values, dtype=np.float64)
+        if v.ndim not in (1, 2) or v.shape[0] != self.n:
+            raise ValueError(f"values: shape {v.shape}, expected ({self.n},) or ({self.n}, P)")
+        squeeze = v.ndim == 1
+        v2 = v.reshape(self.n, -1)
+        p = v2.shape[1]
+        if angular is None:
+            cols = [3] if p > 3 else []
+        else:
+            cols = [int(c) for c in angular]
+            bad = [c for c in cols if not -p <= c < p]
+            if bad:
+                raise ValueError(f"angular: columns {bad} out of range for {p} columns")
+        w = self.weights
+        out = w @ v2
+        for c in cols:
+            out[c] = math.atan2(float(w @ np.sin(v2[:, c])), float(w @ np.cos(v2[:, c])))
+        return out[0:1].reshape(()) if squeeze else out
+
+    def summary(self, bins: int = 20) -> dict:
+        """Plain JSON-able posterior summary: mean, std, ess, n and a weighted histogram
+        per dimension over [low, high] (``weights`` per bin sum to 1)."""
+        w = self.weights
+        hist = []
+        for d in range(self.dim):
+            h, edges = np.histogram(
+                self.particles[:, d], bins=int(bins), range=(self.low[d], self.high[d]), weights=w
+            )
+            hist.append({"edges": edges.tolist(), "weights": h.tolist()})
+        return {
+            "n": self.n,
+            "ess": self.ess(),
+            "mean": self.mean().tolist(),
+            "std": self.std().tolist(),
+            "low": self.low.tolist(),
+            "high": self.high.tolist(),
+            "histogram": hist,
+            "degenerate_updates": int(self.degenerate_updates),
+        }
+
+    # ----------------------------------------------------------------- filtering
+    def update(self, log_likelihood: np.ndarray) -> None:
+        """Bayes step w_i *= p_i, in log space, then renormalise.
+
+        If every particle gets probability zero the update is ignored (weights unchanged)
+        and flagged in ``last_update_degenerate`` / ``degenerate_updates``.
+        """
+        ll = np.asarray(log_likelihood, dtype=np.float64).reshape(-1)
+        if ll.shape != (self.n,):
+            raise ValueError(f"log_likelihood: shape {ll.shape}, expected ({self.n},)")
+        if np.any(np.isnan(ll)) or np.any(ll == math.inf):
+            raise ValueError("log_likelihood: NaN or +inf entries")
+        new = self.log_weights + ll
+        if np.all(new == -math.inf):
+            self.degenerate_updates += 1
+            self.last_update_degenerate = True
+            return
+        self.last_update_degenerate = False
+        self.log_weights = _normalised(new)
+
+    def maybe_resample(
+        self,
+        rng: np.random.Generator,
+        *,
+        threshold: float = 0.5,
+        jitter: float = 0.1,
+        jitter_floor: float = 0.005,
+    ) -> bool:
+        """Resample (systematic, then jitter the copies) when ESS < threshold * N.
+
+        Returns whether it resampled; draws nothing from ``rng`` when it does not.
+        """
+        if self.ess() >= threshold * self.n:
+            return False
+        self.resample(rng, jitter=jitter, jitter_floor=jitter_floor)
+        return True
+
+    def resample(
+        self, rng: np.random.Generator, *, jitter: float = 0.1, jitter_floor: float = 0.005
+    ) -> None:
+        """Systematic resampling now; weights become uniform. See the module docstring."""
+        if jitter < 0 or jitter_floor < 0:
+            raise ValueError("jitter/jitter_floor: must be >= 0")
+        sigma = np.maximum(jitter * self.std(), jitter_floor * (self.high - self.low))
+        ancestors = systematic_resample(self.weights, rng)
+        counts = np.bincount(ancestors, minlength=self.n)
+        # Survivors keep their row; each extra copy of ancestor i fills a dead row, in order.
+        extra = np.repeat(np.arange(self.n), np.maximum(counts - 1, 0))
+        dead = np.flatnonzero(counts == 0)
+        new = self.particles.copy()
+        if dead.size:
+            copies = self.particles[extra]
+            if np.any(sigma > 0):
+                copies = copies + sigma * rng.standard_normal(copies.shape)
+                copies = _reflect_into(copies, self.low, self.high)
+            new[dead] = copies
+        self.particles = new
+        self.log_weights = np.full(self.n, -math.log(self.n))
+
+    # ----------------------------------------------------------------- checkpoints
+    def to_dict(self) -> dict:
+        """Exact, JSON-able state. Zero weights (log -inf) are written as None, since
+        strict JSON has no infinities; Python floats round-trip bit for bit."""
+        return {
+            "particles": self.particles.tolist(),
+            "log_weights": [None if x == -math.inf else x for x in self.log_weights.tolist()],
+            "low": self.low.tolist(),
+            "high": self.high.tolist(),
+            "degenerate_updates": int(self.degenerate_updates),
+            "last_update_degenerate": bool(self.last_update_degenerate),
+        }
+
+    @classmethod
+    def from_dict(cls, data: dict) -> "Belief":
+        log_w = [-math.inf if x is None else float(x) for x in data["log_weights"]]
+        particles = np.array(data["particles"], dtype=np.float64)
+        if particles.ndim == 1:  # tolerate a flat list for D == 1
+            particles = particles.reshape(len(log_w), -1)
+        return cls(
+            particles=particles,
+            log_weights=np.array(log_w, dtype=np.float64),
+            low=np.array(data["low"], dtype=np.float64),
+            high=np.array(data["high"], dtype=np.float64),
+            degenerate_updates=int(data.get("degenerate_updates", 0)),
+            last_update_degenerate=bool(data.get("last_update_degenerate", False)),
+        )
+
+
+# --------------------------------------------------------------------- likelihoods
+def symbolic_log_likelihood(
+    observed: frozenset[str], predicted: Sequence[frozenset[str]], error_rate: float = 0.05
+) -> np.ndarray:
+    """Match model: log(1 - e) where a particle predicted exactly the observed state,
+    log(e) otherwise. A positive e keeps a particle that disagrees once alive (Y^-1 and
+    the real world are noisy); e = 0 makes a mismatch fatal (-inf)."""
+    if not 0.0 <= error_rate < 1.0:
+        raise ValueError(f"error_rate: must be in [0, 1), got {error_rate}")
+    observed = frozenset(observed)
+    match = np.fromiter((frozenset(s) == observed for s in predicted), dtype=bool,
+                        count=len(predicted))
+    miss = math.log(error_rate) if error_rate > 0 else -math.inf
+    return np.where(match, math.log1p(-error_rate), miss)
+
+
+def gaussian_log_likelihood(
+    observed: np.ndarray, predicted: np.ndarray, sigma: float | np.ndarray
+) -> np.ndarray:
+    """Sum over measured components of the log density N(observed_m; predicted_im, sigma_m).
+
+    ``observed`` (M,), ``predicted`` (N, M), ``sigma`` a scalar or (M,). Components where
+    ``observed`` is NaN (not measured) are ignored; a NaN in ``predicted`` on a measured
+    component is an error upstream and raises.
+    """
+    obs = np.asarray(observed, dtype=np.float64).reshape(-1)
+    pred = np.asarray(predicted, dtype=np.float64)
+    if pred.ndim == 1:
+        pred = pred.reshape(-1, obs.shape[0]) if obs.shape[0] else pred.reshape(-1, 0)
+    if pred.ndim != 2 or pred.shape[1] != obs.shape[0]:
+        raise ValueError(f"predicted: shape {pred.shape}, expected (N, {obs.shape[0]})")
+    sig = np.broadcast_to(np.asarray(sigma, dtype=np.float64), obs.shape)
+    if np.any(~(sig > 0)):
+        raise ValueError("sigma: must be positive")
+    used = ~np.isnan(obs)
+    if not np.any(used):
+        return np.zeros(pred.shape[0])
+    p, o, s = pred[:, used], obs[used], sig[used]
+    if np.any(np.isnan(p)):
+        raise ValueError("predicted: NaN on a measured component")
+    z = (p - o) / s
+    return -0.5 * np.sum(z * z, axis=1) - float(np.sum(np.log(s))) - 0.5 * _LOG_2PI * o.shape[0]

@@ -1,0 +1,68 @@
+"""A scene's continuous configuration as plain arrays: what a world is reset to and reports."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class Configuration:
+    """Robot and object poses.
+
+    robot:   (5,)  gripper tool point x, y, z (m), yaw (rad), finger opening (m)
+    objects: (M, 7) per object position (x, y, z) and quaternion (x, y, z, w), in the
+             domain's object order (for the container domain: c, b1..bN)
+    """
+
+    robot: np.ndarray
+    objects: np.ndarray
+
+    def __post_init__(self) -> None:
+        robot = np.asarray(self.robot, dtype=np.float64).reshape(5)
+        objects = np.asarray(self.objects, dtype=np.float64)
+        if objects.ndim != 2 or objects.shape[1] != 7:
+            raise ValueError(f"objects: expected shape (M, 7), got {objects.shape}")
+        if not (np.isfinite(robot).all() and np.isfinite(objects).all()):
+            raise ValueError("configuration: poses must be finite")
+        object.__setattr__(self, "robot", robot)
+        object.__setattr__(self, "objects", objects)
+
+    def to_array(self) -> np.ndarray:
+        """Flat float64 vector (5 + 7M,): the wire format between coordinator and shards."""
+        return np.concatenate([self.robot, self.objects.ravel()])
+
+    @classmethod
+    def from_array(cls, flat: np.ndarray) -> "Configuration":
+        flat = np.asarray(flat, dtype=np.float64)
+        if flat.ndim != 1 or (flat.size - 5) % 7:
+            raise ValueError(f"configuration vector: bad length {flat.size}")
+        return cls(flat[:5], flat[5:].reshape(-1, 7))
+
+    def to_dict(self) -> dict:
+        return {"robot": self.robot.tolist(), "objects": self.objects.tolist()}
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "Configuration":
+        return cls(np.asarray(d["robot"]), np.asarray(d["objects"]))
+
+    def __eq__(self, other: object) -> bool:
+        return (isinstance(other, Configuration) and np.array_equal(self.robot, other.robot)
+                and np.array_equal(self.objects, other.objects))
+
+    __hash__ = None  # type: ignore[assignment]
+
+
+def yaw_of(quat: np.ndarray) -> float:
+    """Rotation about z of a body's x axis, from a quaternion (x, y, z, w)."""
+    x, y, z, w = quat
+    return float(np.arctan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z)))
+
+
+def quat_from_yaw(yaw: float) -> np.ndarray:
+    return np.array([0.0, 0.0, np.sin(yaw / 2.0), np.cos(yaw / 2.0)])
+
+
+def rotate_z(xy: np.ndarray, yaw: float) -> np.ndarray:
+    c, s = np.cos(yaw), np.sin(yaw)
+    return np.array([c * xy[0] - s * xy[1], s * xy[0] + c * xy[1]])

@@ -1,0 +1,110 @@
+"""The container domain (the paper's simulation experiment, DESIGN.md section 3)."""
+from __future__ import annotations
+
+import dataclasses
+import re
+
+import numpy as np
+
+from .. import domains
+from ..configuration import Configuration
+from ..properties import PropertyError, block_properties, validate_sizes
+from . import scene, state_mapping, trajectories
+from .spec import ContainerSpec
+
+
+class ContainerDomain:
+    """Blocks, an open container and a floating gripper; L = the blocks' side lengths."""
+
+    name = "container"
+
+    def __init__(self, spec: ContainerSpec | None = None, **overrides) -> None:
+        spec = spec or ContainerSpec()
+        if overrides:
+            unknown = set(overrides) - {f.name for f in dataclasses.fields(ContainerSpec)}
+            if unknown:
+                raise ValueError(f"container domain: unknown option(s) {sorted(unknown)}")
+            spec = dataclasses.replace(spec, **overrides)
+        if not 1 <= spec.n_blocks <= 16:
+            raise ValueError(f"n_blocks: {spec.n_blocks} is outside [1, 16]")
+        self.spec = spec
+
+    # -- data -----------------------------------------------------------------------
+    @property
+    def object_names(self) -> list[str]:
+        return self.spec.object_names
+
+    @property
+    def block_names(self) -> list[str]:
+        return self.spec.block_names
+
+    def true_properties(self, sizes_variation: bool = False) -> dict:
+        """The hidden truth: all blocks `true_size`, or (variation "sizes") one 20 % larger."""
+        sizes = np.full(self.spec.n_blocks, self.spec.true_size)
+        if sizes_variation:
+            sizes[0] *= 1.2
+        return {"block_sizes": sizes}
+
+    def properties(self, props: dict) -> dict:
+        """Validated property arrays: block_sizes (n,), block_masses (n,)."""
+        if not isinstance(props, dict):
+            raise PropertyError("properties: expected a mapping with 'block_sizes'")
+        sizes, masses = block_properties(props, self.spec.n_blocks, self.spec.density)
+        return {"block_sizes": sizes, "block_masses": masses}
+
+    # -- physics ---------------------------------------------------------------------
+    def build(self, client: int, props: dict) -> scene.SceneHandles:
+        p = self.properties(props)
+        return scene.build_scene(client, self.spec, p["block_sizes"], p["block_masses"])
+
+    def initial_configuration(self, props: dict) -> Configuration:
+        return state_mapping.initial_configuration(self.spec, self.properties(props)["block_sizes"])
+
+    def place(self, config: Configuration, props: dict) -> Configuration:
+        return state_mapping.place_for_sizes(self.spec, config, self.properties(props)["block_sizes"])
+
+    def after_action(self, config: Configuration, action: str) -> Configuration:
+        """At goal a helper unloads the container: its blocks count as delivered."""
+        name, args = state_mapping.parse_action(action)
+        if name != "push" or state_mapping.container_location(self.spec, config) != "goal":
+            return config
+        labels = state_mapping.block_labels(self.spec, config)
+        objects = config.objects.copy()
+        for i, label in enumerate(labels):
+            if label == state_mapping.CONTAINER:
+                xy = self.spec.delivered_slot(i)
+                objects[1 + i] = [xy[0], xy[1], objects[1 + i, 2], 0, 0, 0, 1]
+        return Configuration(config.robot, objects)
+
+    # -- Y and Y^-1 ------------------------------------------------------------------
+    def symbolic_state(self, config: Configuration) -> frozenset[str]:
+        return state_mapping.symbolic_state(self.spec, config)
+
+    def action_pose(self, props: dict, config: Configuration, action: str) -> np.ndarray:
+        sizes = validate_sizes(props["block_sizes"], self.spec.n_blocks) \
+            if isinstance(props, dict) and "block_sizes" in props else self.properties(props)["block_sizes"]
+        return state_mapping.action_pose(self.spec, sizes, config, action)
+
+    def action_trajectory(self, config: Configuration, action: str, key: np.ndarray,
+                          transit: np.ndarray | None = None) -> np.ndarray:
+        return trajectories.action_trajectory(self.spec, config, action, key, transit)
+
+    def pre_pose(self, config: Configuration, action: str, key: np.ndarray) -> np.ndarray:
+        holding = any(a.startswith("is_holding") for a in self.symbolic_state(config))
+        return trajectories.pre_pose(self.spec, action, key, holding)
+
+    def measurements(self, config: Configuration) -> np.ndarray:
+        """Planar block positions (x, y per block): what a top-down camera measures."""
+        return config.objects[1:, :2].ravel().copy()
+
+    def check_action(self, action: str) -> None:
+        name, args = state_mapping.parse_action(action)
+        if name in ("pickup", "stack"):
+            state_mapping.block_index(self.spec, args[1])
+        if name == "pickup" and args[2] not in ("init", "table"):
+            raise ValueError(f"action: pickup from {args[2]!r} (expected init or table)")
+        if name == "push" and not all(re.fullmatch(r"init|goal", a) for a in args[2:4]):
+            raise ValueError(f"action: push between {args[2:4]} (expected init/goal)")
+
+
+domains.register("container", ContainerDomain)

@@ -1,0 +1,95 @@
+"""The container domain's scene as data: geometry, physics settings, locations (design sec. 3)."""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class ContainerSpec:
+    """Everything fixed about the scene; the unknown block sizes are not here (they are L)."""
+
+    n_blocks: int = 8
+    # Blocks: the truth the agent does not know, and its prior.
+    true_size: float = 0.045
+    prior_low: float = 0.030
+    prior_high: float = 0.060
+    density: float = 700.0          # kg/m^3, known to the agent (wood)
+    # Where things are (metres). z up, table at z = 0.
+    init_row_x: float = -0.20
+    row_pitch: float = 0.075
+    container_init: tuple[float, float] = (0.0, 0.0)
+    container_goal: tuple[float, float] = (0.6, 0.0)
+    delivered_x: float = 0.95       # the helper unloads delivered blocks into a row here
+    # The open container (tray): inner footprint takes two blocks side by side along x.
+    inner_half: tuple[float, float] = (0.050, 0.036)
+    wall_thickness: float = 0.006
+    wall_height: float = 0.035      # above the floor
+    floor_thickness: float = 0.006
+    container_mass: float = 0.30
+    # Gripper: palm, two prismatic fingers; pose = fingertip centre (tool point).
+    palm_half: tuple[float, float, float] = (0.020, 0.055, 0.010)
+    finger_half: tuple[float, float, float] = (0.012, 0.005, 0.030)
+    max_opening: float = 0.09
+    grip_force: float = 5.0         # N per finger; more overpowers 20 solver iterations (measured)
+    finger_speed: float = 0.15      # m/s
+    base_max_force: float = 40.0    # N, the constraint that carries the floating base
+    # Friction (Bullet multiplies the two bodies' coefficients).
+    mu_table: float = 0.5
+    mu_container: float = 0.6       # container-table 0.30
+    mu_block: float = 0.8           # block-table 0.40, block-block 0.64
+    mu_finger: float = 1.5          # finger-block 1.20
+    # Physics: chosen by measurement (benchmarks/bench_worlds.py and DESIGN sec. 7).
+    time_step: float = 1.0 / 120.0
+    solver_iterations: int = 20
+    # Y's grasp rules, in terms of the believed size s: pre-grasp opening = open_ratio * s,
+    # fingertips this far below the believed top.
+    open_ratio: float = 1.15
+    grip_depth: float = 0.010
+    release_clearance: float = 0.006
+    slot_gap: float = 0.003
+    approach_height: float = 0.08
+    carry_height: float = 0.20
+    push_tip_z: float = 0.008
+    push_opening: float = 0.05
+    push_speed: float = 0.50       # a brisk stroke: tall piles topple, low loads ride (probe-tuned)
+    push_accel: float = 8.0
+    move_speed: float = 0.30
+    settle_s: float = 1.0
+    extra: dict = field(default_factory=dict, compare=False)
+
+    @property
+    def object_names(self) -> list[str]:
+        return ["c"] + self.block_names
+
+    @property
+    def block_names(self) -> list[str]:
+        return [f"b{i + 1}" for i in range(self.n_blocks)]
+
+    @property
+    def floor_top(self) -> float:
+        return self.floor_thickness
+
+    @property
+    def outer_half(self) -> tuple[float, float]:
+        return (self.inner_half[0] + self.wall_thickness, self.inner_half[1] + self.wall_thickness)
+
+    @property
+    def finger_length(self) -> float:
+        return 2.0 * self.finger_half[2]
+
+    @property
+    def palm_offset(self) -> float:
+        """Height of the palm centre above the fingertips."""
+        return self.finger_length + self.palm_half[2]
+
+    def init_slot(self, i: int) -> np.ndarray:
+        """Nominal (x, y) of block i (0-based) in the start row."""
+        return np.array([self.init_row_x, (i - (self.n_blocks - 1) / 2.0) * self.row_pitch])
+
+    def delivered_slot(self, i: int) -> np.ndarray:
+        return np.array([self.delivered_x, (i - (self.n_blocks - 1) / 2.0) * self.row_pitch])
+
+    def location_xy(self, name: str) -> np.ndarray:
+        return np.array(self.container_goal if name == "goal" else self.container_init)

@@ -1,0 +1,203 @@
+"""Y and Y^-1 for the container domain, in plain numpy.
+
+Y (``action_pose``) maps believed properties L, the observed configuration and a symbolic
+action to the action's key pose (x, y, z, yaw, opening). Y^-1 (``symbolic_state``) maps a
+configuration to ground atoms. The same code serves the real world and every particle, so
+their outcomes are comparable. ``place_for_sizes`` re-grounds an observed configuration
+under one hypothesis L_i (heights follow from each particle's own sizes, since the
+observation fixes only where things are, not how big they are).
+"""
+from __future__ import annotations
+
+import re
+
+import numpy as np
+
+from ..configuration import Configuration, quat_from_yaw, rotate_z, yaw_of
+from .spec import ContainerSpec
+
+_ACTION = re.compile(r"^(pickup|stack|push)\(([^()]*)\)$")
+
+# Labels of where a block is; Y^-1 turns them into atoms.
+HELD, CONTAINER, GOAL, INIT, TABLE = "held", "container", "goal", "init", "table"
+
+
+def parse_action(action: str) -> tuple[str, list[str]]:
+    m = _ACTION.match(action.replace(" ", ""))
+    if not m:
+        raise ValueError(f"action: cannot parse {action!r}")
+    return m.group(1), m.group(2).split(",")
+
+
+def block_index(spec: ContainerSpec, name: str) -> int:
+    if not re.fullmatch(r"b\d+", name) or not 1 <= int(name[1:]) <= spec.n_blocks:
+        raise ValueError(f"action: unknown block {name!r}")
+    return int(name[1:]) - 1
+
+
+def container_location(spec: ContainerSpec, config: Configuration) -> str:
+    cxy = config.objects[0, :2]
+    d_init = np.linalg.norm(cxy - spec.location_xy("init"))
+    d_goal = np.linalg.norm(cxy - spec.location_xy("goal"))
+    return "goal" if d_goal < d_init else "init"
+
+
+def _in_hand(spec: ContainerSpec, config: Configuration, p: np.ndarray) -> bool:
+    g = config.robot
+    if g[4] > spec.max_opening - 0.01:       # fingers wide open: nothing is gripped
+        return False
+    local = rotate_z(p[:2] - g[:2], -g[3])
+    dz = p[2] - g[2]
+    return (abs(local[0]) < spec.finger_half[0] + 0.012 and abs(local[1]) < 0.045
+            and -0.05 < dz < 0.035 and p[2] > 0.06)
+
+
+def _in_container(spec: ContainerSpec, config: Configuration, p: np.ndarray) -> bool:
+    c = config.objects[0]
+    local = rotate_z(p[:2] - c[:2], -yaw_of(c[3:]))
+    ix, iy = spec.inner_half
+    return abs(local[0]) < ix + 0.004 and abs(local[1]) < iy + 0.004 and p[2] > c[2]
+
+
+def block_labels(spec: ContainerSpec, config: Configuration) -> list[str]:
+    """Where each block is: held, container, goal, init (its start slot) or table."""
+    labels = []
+    for i in range(spec.n_blocks):
+        p = config.objects[1 + i, :3]
+        if _in_hand(spec, config, p):
+            labels.append(HELD)
+        elif _in_container(spec, config, p):
+            labels.append(CONTAINER)
+        elif p[0] > spec.delivered_x - 0.1:
+            labels.append(GOAL)
+        elif np.linalg.norm(p[:2] - spec.init_slot(i)) < 0.02:
+            labels.append(INIT)
+        else:
+            labels.append(TABLE)
+    held = [i for i, label in enumerate(labels) if label == HELD]
+    for i in held[1:]:                       # one hand holds one block; the nearest wins
+        labels[i] = TABLE
+    return labels
+
+
+def symbolic_state(spec: ContainerSpec, config: Configuration) -> frozenset[str]:
+    """Y^-1: the ground atoms that hold in a configuration."""
+    atoms = {f"is_in(c,{container_location(spec, config)})"}
+    labels = block_labels(spec, config)
+    for name, label in zip(spec.block_names, labels):
+        if label == HELD:
+            atoms.add(f"is_holding(r,{name})")
+        elif label == CONTAINER:
+            atoms.add(f"at_container({name},c)")
+        else:
+            atoms.add(f"is_in({name},{label})")
+    if HELD not in labels:
+        atoms.add("hand_empty(r)")
+    return frozenset(atoms)
+
+
+def _grasp_yaw(quat: np.ndarray) -> float:
+    """The block's yaw folded into [-pi/4, pi/4): a cube looks the same every quarter turn."""
+    yaw = yaw_of(quat)
+    return float((yaw + np.pi / 4) % (np.pi / 2) - np.pi / 4)
+
+
+def _column_of(spec: ContainerSpec, config: Configuration, p: np.ndarray) -> int:
+    c = config.objects[0]
+    return int(rotate_z(p[:2] - c[:2], -yaw_of(c[3:]))[0] > 0)
+
+
+def action_pose(spec: ContainerSpec, sizes: np.ndarray, config: Configuration, action: str) -> np.ndarray:
+    """Y(L, s, a): the key pose (x, y, z, yaw, opening) of `action` under believed sizes."""
+    name, args = parse_action(action)
+    if name == "pickup":
+        i = block_index(spec, args[1])
+        p = config.objects[1 + i]
+        s = sizes[i]
+        z = max(s - spec.grip_depth, 0.003)
+        return np.array([p[0], p[1], z, _grasp_yaw(p[3:]), spec.open_ratio * s])
+    if name == "stack":
+        i = block_index(spec, args[1])
+        c = config.objects[0]
+        cyaw = yaw_of(c[3:])
+        labels = block_labels(spec, config)
+        heights = [spec.floor_top, spec.floor_top]
+        for j, label in enumerate(labels):
+            if label == CONTAINER:
+                heights[_column_of(spec, config, config.objects[1 + j, :3])] += sizes[j]
+        col = int(np.argmin(heights))          # the lower column; ties go left
+        s = sizes[i]
+        lx = (1 if col else -1) * (s / 2 + spec.slot_gap / 2)
+        xy = c[:2] + rotate_z(np.array([lx, 0.0]), cyaw)
+        z = heights[col] + spec.release_clearance + (s - spec.grip_depth)
+        return np.array([xy[0], xy[1], z, cyaw, spec.open_ratio * s])
+    # push(R, C, L1, L2): behind the container, fingers low, moving towards L2.
+    c = config.objects[0]
+    target = spec.location_xy(args[3])
+    d = 1.0 if target[0] >= c[0] else -1.0
+    x = c[0] - d * (spec.outer_half[0] + spec.finger_half[0] + 0.012)
+    return np.array([x, c[1], spec.push_tip_z, 0.0, spec.push_opening])
+
+
+def push_end_x(spec: ContainerSpec, config: Configuration, action: str, key: np.ndarray) -> float:
+    """Where the push stroke ends: the tool point when the container reaches L2."""
+    _, args = parse_action(action)
+    target = spec.location_xy(args[3])
+    c = config.objects[0]
+    return float(key[0] + (target[0] - c[0]))
+
+
+def place_for_sizes(spec: ContainerSpec, config: Configuration, sizes: np.ndarray) -> Configuration:
+    """Re-ground an observed configuration under one hypothesis of the block sizes.
+
+    Planar poses (x, y, yaw) come from the observation; heights come from the hypothesis:
+    a block on the table rests on it, a block in the container rests on the ones below it
+    in its column (order by observed height), a held block stays where it was seen and the
+    fingers close on its hypothesised width. Blocks are set upright (cubes at rest).
+    """
+    labels = block_labels(spec, config)
+    objects = config.objects.copy()
+    robot = config.robot.copy()
+    c = objects[0]
+    cyaw = yaw_of(c[3:])
+    objects[0] = np.concatenate([[c[0], c[1], 0.0], quat_from_yaw(cyaw)])
+    ix, iy = spec.inner_half
+    columns: dict[int, list[int]] = {0: [], 1: []}
+    for i, label in enumerate(labels):
+        p = config.objects[1 + i]
+        s = sizes[i]
+        if label == CONTAINER:
+            columns[_column_of(spec, config, p[:3])].append(i)
+        elif label == HELD:
+            objects[1 + i] = np.concatenate([p[:3], quat_from_yaw(robot[3])])
+            robot[4] = s
+        elif label == GOAL:
+            xy = spec.delivered_slot(i)
+            objects[1 + i] = [xy[0], xy[1], s / 2, 0, 0, 0, 1]
+        else:
+            objects[1 + i] = np.concatenate([[p[0], p[1], s / 2], quat_from_yaw(_grasp_yaw(p[3:]))])
+    for col, members in columns.items():
+        members.sort(key=lambda j: config.objects[1 + j, 2])
+        z = spec.floor_top
+        for j in members:
+            s = sizes[j]
+            local = rotate_z(config.objects[1 + j, :2] - c[:2], -cyaw)
+            lx = np.clip(abs(local[0]), s / 2, max(ix - s / 2, s / 2))
+            lx = lx if col else -lx
+            ly = np.clip(local[1], -max(iy - s / 2, 0.0), max(iy - s / 2, 0.0))
+            xy = c[:2] + rotate_z(np.array([lx, ly]), cyaw)
+            objects[1 + j] = np.concatenate([[xy[0], xy[1], z + s / 2], quat_from_yaw(cyaw)])
+            z += s
+    return Configuration(robot, objects)
+
+
+def initial_configuration(spec: ContainerSpec, sizes: np.ndarray) -> Configuration:
+    """All blocks in their start row, the container at init, the gripper up and open."""
+    objects = np.zeros((1 + spec.n_blocks, 7))
+    x, y = spec.container_init
+    objects[0] = [x, y, 0.0, 0, 0, 0, 1]
+    for i in range(spec.n_blocks):
+        xy = spec.init_slot(i)
+        objects[1 + i] = [xy[0], xy[1], sizes[i] / 2, 0, 0, 0, 1]
+    robot = np.array([x, y, spec.carry_height, 0.0, spec.max_opening - 0.005])
+    return Configuration(robot, objects)

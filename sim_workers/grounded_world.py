@@ -1,0 +1,168 @@
+"""A grounded world: one physics simulation of the scene under one hypothesis L_i.
+
+The world owns one pybullet DIRECT client. ``reset`` rebuilds the scene in that client
+from scratch (``resetSimulation``) for the given properties and places it at an observed
+configuration. Rebuilding costs ~2 ms, but it is the only way we found to make a result
+depend on nothing but (configuration, properties, trajectory): pybullet's ``restoreState``
+and pose resets leave contact caches and broadphase history behind, and results then
+drift by ~1e-13 with the world's past (tests/sim_workers/test_determinism.py shows the
+rebuilt world is bit-identical to a fresh process). ``resetSimulation`` frees every
+shape, so memory stays flat over any number of resets.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import pybullet as pb
+
+from . import trajectory as tr
+from .configuration import Configuration, quat_from_yaw, rotate_z, yaw_of
+from .domains import Domain
+
+REST_LINEAR = 0.004     # m/s: below this everything counts as at rest
+REST_ANGULAR = 0.04     # rad/s
+REST_CHECK_EVERY = 6    # steps
+
+
+@dataclass(frozen=True)
+class Outcome:
+    """What one action did in one world."""
+
+    configuration: Configuration
+    state: frozenset[str]
+    measurements: np.ndarray
+    steps: int
+
+
+class GroundedWorld:
+    """One pybullet DIRECT client holding one scene of `domain`."""
+
+    def __init__(self, domain: Domain) -> None:
+        self.domain = domain
+        self.client = pb.connect(pb.DIRECT)
+        self.handles = None
+        self.props: dict | None = None
+        self.settle_s = float(getattr(domain.spec, "settle_s", 1.0))
+
+    # -- lifecycle ---------------------------------------------------------------------
+    def close(self) -> None:
+        if self.client is not None and pb.isConnected(physicsClientId=self.client):
+            pb.disconnect(physicsClientId=self.client)
+        self.client = None
+
+    def __enter__(self) -> "GroundedWorld":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    # -- state ---------------------------------------------------------------------------
+    def reset(self, config: Configuration, props: dict, *, place: bool = True) -> Configuration:
+        """Rebuild the scene under `props` and put it in `config` (re-grounded if `place`)."""
+        props = self.domain.properties(props)
+        pb.resetSimulation(physicsClientId=self.client)
+        self.handles = self.domain.build(self.client, props)
+        self.props = props
+        placed = self.domain.place(config, props) if place else config
+        self._apply(placed)
+        return placed
+
+    def _apply(self, config: Configuration) -> None:
+        h, c = self.handles, self.client
+        for body, pose in zip(h.objects, config.objects):
+            pb.resetBasePositionAndOrientation(body, pose[:3], pose[3:], physicsClientId=c)
+            pb.resetBaseVelocity(body, [0, 0, 0], [0, 0, 0], physicsClientId=c)
+        self._set_gripper(config.robot, reset=True)
+
+    def _set_gripper(self, robot: np.ndarray, reset: bool = False) -> None:
+        h, c = self.handles, self.client
+        pos = [robot[0], robot[1], robot[2] + h.palm_offset]
+        orn = quat_from_yaw(robot[3])
+        q = robot[4] / 2.0 + h.finger_inner
+        if reset:
+            pb.resetBasePositionAndOrientation(h.gripper, pos, orn, physicsClientId=c)
+            pb.resetBaseVelocity(h.gripper, [0, 0, 0], [0, 0, 0], physicsClientId=c)
+            for j in h.fingers:
+                pb.resetJointState(h.gripper, j, q, 0.0, physicsClientId=c)
+        pb.changeConstraint(h.base_constraint, jointChildPivot=pos, jointChildFrameOrientation=orn,
+                            maxForce=self.domain.spec.base_max_force, physicsClientId=c)
+        pb.setJointMotorControlArray(h.gripper, list(h.fingers), pb.POSITION_CONTROL,
+                                     targetPositions=[q, q], forces=[h.grip_force] * 2,
+                                     physicsClientId=c)
+
+    def observe(self) -> Configuration:
+        """The current configuration (gripper tool point, opening, object poses)."""
+        h, c = self.handles, self.client
+        pos, orn = pb.getBasePositionAndOrientation(h.gripper, physicsClientId=c)
+        q = [s[0] for s in pb.getJointStates(h.gripper, list(h.fingers), physicsClientId=c)]
+        opening = 2.0 * (np.mean(q) - h.finger_inner)
+        robot = np.array([pos[0], pos[1], pos[2] - h.palm_offset, yaw_of(np.array(orn)), opening])
+        objects = np.array([np.concatenate(pb.getBasePositionAndOrientation(b, physicsClientId=c))
+                            for b in h.objects])
+        return Configuration(robot, objects)
+
+    def symbolic_state(self) -> frozenset[str]:
+        return self.domain.symbolic_state(self.observe())
+
+    def at_rest(self) -> bool:
+        c = self.client
+        for b in self.handles.objects:
+            lin, ang = pb.getBaseVelocity(b, physicsClientId=c)
+            if max(map(abs, lin)) > REST_LINEAR or max(map(abs, ang)) > REST_ANGULAR:
+                return False
+        return True
+
+    # -- acting -------------------------------------------------------------------------
+    def skip_to(self, trajectory: np.ndarray, start_time: float) -> None:
+        """Jump the gripper (and what it holds) to the trajectory's pose at `start_time`.
+
+        Used to skip the free-space transit, which touches nothing, in particle worlds.
+        """
+        now = self.observe()
+        target = tr.sample(trajectory, np.array([start_time]))[0]
+        held = [i for i, a in enumerate(self.domain.object_names)
+                if f"is_holding(r,{a})" in self.domain.symbolic_state(now)]
+        objects = now.objects.copy()
+        dyaw = target[3] - now.robot[3]
+        for i in held:
+            rel = rotate_z(objects[i, :2] - now.robot[:2], dyaw)
+            objects[i, :2] = target[:2] + rel
+            objects[i, 2] += target[2] - now.robot[2]
+            objects[i, 3:] = quat_from_yaw(yaw_of(objects[i, 3:]) + dyaw)
+        robot = target.copy()
+        robot[4] = now.robot[4]
+        self._apply(Configuration(robot, objects))
+
+    def execute(self, trajectory: np.ndarray, action: str, *, start_time: float = 0.0,
+                max_settle_s: float | None = None) -> Outcome:
+        """Follow `trajectory` (t, x, y, z, yaw, opening) then let the scene settle.
+
+        Simulated time is bounded by the trajectory's end plus the settle time; it stops
+        early once every object is at rest after the trajectory has ended.
+        """
+        traj = tr.validate(trajectory)
+        h = self.handles
+        if h is None:
+            raise RuntimeError("world: reset() before execute()")
+        if start_time > 0.0:
+            self.skip_to(traj, start_time)
+        dt = h.time_step
+        t_end = float(traj[-1, 0])
+        settle = self.settle_s if max_settle_s is None else max_settle_s
+        times = start_time + dt * np.arange(1, int(np.ceil((t_end - start_time + settle) / dt)) + 1)
+        targets = tr.sample(traj, times)
+        steps = 0
+        for k, (t, target) in enumerate(zip(times, targets)):
+            self._set_gripper(target)
+            pb.stepSimulation(physicsClientId=self.client)
+            steps += 1
+            if t > t_end and k % REST_CHECK_EVERY == 0 and self.at_rest():
+                break
+        config = self.observe()
+        after = self.domain.after_action(config, action)
+        if after is not config:
+            self._apply(after)
+            config = after
+        return Outcome(config, self.domain.symbolic_state(config),
+                       self.domain.measurements(config), steps)

@@ -1,0 +1,93 @@
+"""The shard: a Ray actor that owns grounded worlds and simulates one action for a batch.
+
+One remote call per shard per action carries the whole batch: numpy arrays in (start
+configuration, per-particle properties, trajectory or per-particle trajectories), numpy
+arrays out (configurations, symbolic outcomes as text, measurements, step counts). A shard
+keeps no state the coordinator cannot resend, so Ray may restart a dead one and re-run its
+batch with identical results (every particle-action runs in a freshly rebuilt world).
+"""
+from __future__ import annotations
+
+import os
+import resource
+
+import numpy as np
+
+from .configuration import Configuration
+from .domains import load
+from .grounded_world import GroundedWorld
+
+
+def encode_state(state: frozenset[str]) -> str:
+    """A symbolic state as one plain string (sorted atoms joined by spaces)."""
+    return " ".join(sorted(state))
+
+
+def decode_state(text: str) -> frozenset[str]:
+    return frozenset(text.split()) if text else frozenset()
+
+
+class Shard:
+    """K grounded worlds of one domain in one process; particles are dealt round-robin.
+
+    Wrap with ``ray.remote`` (see ``remote_shard``) to run as an actor; the plain class
+    runs in-process (tests, benchmarks, the probe).
+    """
+
+    def __init__(self, domain: str = "container", options: dict | None = None, n_worlds: int = 1) -> None:
+        if n_worlds < 1:
+            raise ValueError(f"n_worlds: {n_worlds} must be at least 1")
+        # Worlds are built here, inside the process that uses them: a pybullet client id
+        # does not survive pickling.
+        self.domain = load(domain, **(options or {}))
+        self.worlds = [GroundedWorld(self.domain) for _ in range(n_worlds)]
+
+    def simulate(self, start: np.ndarray, sizes: np.ndarray, action: str, trajectory: np.ndarray,
+                 start_time: float = 0.0) -> dict:
+        """Run `action` once per particle.
+
+        start:      (5 + 7M,) flat observed configuration (re-grounded per particle)
+        sizes:      (B, n_blocks) block sizes, one row per particle
+        trajectory: (T, 6) shared by every particle ("replay") or (B, T, 6) one each ("paper")
+        Returns arrays: configurations (B, 5 + 7M), states (B,) text, measurements (B, P),
+        steps (B,).
+        """
+        config = Configuration.from_array(start)
+        sizes = np.atleast_2d(np.asarray(sizes, dtype=np.float64))
+        traj = np.asarray(trajectory, dtype=np.float64)
+        shared = traj.ndim == 2
+        if not shared and traj.shape[0] != len(sizes):
+            raise ValueError(f"trajectory: {traj.shape[0]} trajectories for {len(sizes)} particles")
+        configs, states, meas, steps = [], [], [], []
+        for b, row in enumerate(sizes):
+            world = self.worlds[b % len(self.worlds)]
+            world.reset(config, {"block_sizes": row})
+            out = world.execute(traj if shared else traj[b], action, start_time=start_time)
+            configs.append(out.configuration.to_array())
+            states.append(encode_state(out.state))
+            meas.append(out.measurements)
+            steps.append(out.steps)
+        return {"configurations": np.array(configs), "states": np.array(states, dtype=object),
+                "measurements": np.array(meas), "steps": np.array(steps, dtype=np.int64)}
+
+    def node(self) -> dict:
+        """Where this shard runs and what it costs in memory (RSS in MB)."""
+        rss_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+        try:
+            import ray
+            node_id = ray.get_runtime_context().get_node_id() if ray.is_initialized() else "local"
+        except Exception:  # pragma: no cover - ray absent in a plain process
+            node_id = "local"
+        return {"pid": os.getpid(), "node_id": node_id, "hostname": os.uname().nodename,
+                "rss_mb": rss_mb, "worlds": len(self.worlds)}
+
+    def close(self) -> None:
+        for w in self.worlds:
+            w.close()
+
+
+def remote_shard(num_cpus: float = 1.0):
+    """The Ray actor class: restarted by Ray when its process dies, its task retried."""
+    import ray
+
+    return ray.remote(num_cpus=num_cpus, max_restarts=-1, max_task_retries=-1)(Shard)
