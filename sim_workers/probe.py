@@ -72,8 +72,8 @@ def loaded_configuration(domain, sizes: np.ndarray, load_k: int, rng: np.random.
 def _act(world: GroundedWorld, domain, config, believed: dict, action: str):
     key = domain.action_pose(believed, config, action)
     traj = domain.action_trajectory(config, action, key)
-    # The transit to the pre-pose is free space: skip it (it is the first 3 rows' motion).
-    return world.execute(traj, action, start_time=float(traj[3, 0]) if len(traj) > 3 else 0.0)
+    # The transit to the pre-pose is free space: skip it.
+    return world.execute(traj, action, start_time=domain.transit_end_time(config, action, key))
 
 
 def run_trial(action: str, true_size: float, believed_size: float, load_k: int,

@@ -43,12 +43,13 @@ class Shard:
         self.worlds = [GroundedWorld(self.domain) for _ in range(n_worlds)]
 
     def simulate(self, start: np.ndarray, sizes: np.ndarray, action: str, trajectory: np.ndarray,
-                 start_time: float = 0.0) -> dict:
+                 start_time=0.0) -> dict:
         """Run `action` once per particle.
 
         start:      (5 + 7M,) flat observed configuration (re-grounded per particle)
         sizes:      (B, n_blocks) block sizes, one row per particle
         trajectory: (T, 6) shared by every particle ("replay") or (B, T, 6) one each ("paper")
+        start_time: where to start in the trajectory (scalar, or (B,) one per particle)
         Returns arrays: configurations (B, 5 + 7M), states (B,) text, measurements (B, P),
         steps (B,).
         """
@@ -58,11 +59,12 @@ class Shard:
         shared = traj.ndim == 2
         if not shared and traj.shape[0] != len(sizes):
             raise ValueError(f"trajectory: {traj.shape[0]} trajectories for {len(sizes)} particles")
+        starts = np.broadcast_to(np.asarray(start_time, dtype=np.float64), (len(sizes),))
         configs, states, meas, steps = [], [], [], []
         for b, row in enumerate(sizes):
             world = self.worlds[b % len(self.worlds)]
             world.reset(config, {"block_sizes": row})
-            out = world.execute(traj if shared else traj[b], action, start_time=start_time)
+            out = world.execute(traj if shared else traj[b], action, start_time=float(starts[b]))
             configs.append(out.configuration.to_array())
             states.append(encode_state(out.state))
             meas.append(out.measurements)

@@ -89,13 +89,41 @@ class ContainerDomain:
                           transit: np.ndarray | None = None) -> np.ndarray:
         return trajectories.action_trajectory(self.spec, config, action, key, transit)
 
+    def transit_end_time(self, config: Configuration, action: str, key: np.ndarray,
+                         transit: np.ndarray | None = None) -> float:
+        return trajectories.transit_end_time(self.spec, config, action, key, transit)
+
+    def obstacles(self, config: Configuration, size: float) -> list[tuple[np.ndarray, np.ndarray]]:
+        """Axis-aligned boxes (centre, half extents) around the container and every block
+        not in the hand, for the motion planner's geometric collision check."""
+        labels = state_mapping.block_labels(self.spec, config)
+        c = config.objects[0]
+        ox, oy = self.spec.outer_half
+        top = self.spec.floor_thickness + self.spec.wall_height
+        boxes = [(np.array([c[0], c[1], top / 2]), np.array([ox, oy, top / 2]))]
+        for i, label in enumerate(labels):
+            if label not in (state_mapping.HELD, state_mapping.GOAL):
+                p = config.objects[1 + i, :3]
+                boxes.append((p.copy(), np.full(3, 0.75 * size)))
+        return boxes
+
     def pre_pose(self, config: Configuration, action: str, key: np.ndarray) -> np.ndarray:
         holding = any(a.startswith("is_holding") for a in self.symbolic_state(config))
         return trajectories.pre_pose(self.spec, action, key, holding)
 
     def measurements(self, config: Configuration) -> np.ndarray:
-        """Planar block positions (x, y per block): what a top-down camera measures."""
-        return config.objects[1:, :2].ravel().copy()
+        """The gripper's finger opening, then planar block positions (x, y per block).
+
+        What a robot measures without knowing sizes: its own gripper width (after a grasp
+        it is the block's width, the most informative reading) and a top-down camera's
+        block positions. Heights are left out on purpose: a depth reading of a block on
+        the table would give its size away and leave nothing to learn.
+        """
+        return np.concatenate([[config.robot[4]], config.objects[1:, :2].ravel()])
+
+    def measurement_sigma(self) -> np.ndarray:
+        """Noise std of each measurement (m): 2 mm on the opening, 1 cm on positions."""
+        return np.concatenate([[0.002], np.full(2 * self.spec.n_blocks, 0.01)])
 
     def check_action(self, action: str) -> None:
         name, args = state_mapping.parse_action(action)

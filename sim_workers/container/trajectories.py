@@ -32,8 +32,18 @@ def action_trajectory(spec: ContainerSpec, config: Configuration, action: str, k
     """The whole timed trajectory (t, x, y, z, yaw, opening) of one action.
 
     `transit` is the (M, 4 or 5) collision-free path to the pre-pose (the motion planner's);
-    without one the default up-across-down path is used.
+    without one the default up-across-down path is used. `transit_end_time` says when the
+    free-space transit ends (where particle worlds may start).
     """
+    return _action_trajectory(spec, config, action, key, transit)[0]
+
+
+def transit_end_time(spec: ContainerSpec, config: Configuration, action: str, key: np.ndarray,
+                     transit: np.ndarray | None = None) -> float:
+    return _action_trajectory(spec, config, action, key, transit)[1]
+
+
+def _action_trajectory(spec, config, action, key, transit):
     name, _ = parse_action(action)
     start = config.robot.copy()
     holding = name == "stack"
@@ -48,6 +58,7 @@ def action_trajectory(spec: ContainerSpec, config: Configuration, action: str, k
             path = np.column_stack([path, np.full(len(path), pre[4])])
         path = np.vstack([start, path, pre])
     move = tr.time_parameterize(path, spec.move_speed)
+    t_pre = float(move[-1, 0])
     if name == "pickup":
         closed = key.copy(); closed[4] = CLOSED
         lifted = closed.copy(); lifted[2] = spec.carry_height
@@ -55,7 +66,7 @@ def action_trajectory(spec: ContainerSpec, config: Configuration, action: str, k
         grip = tr.time_parameterize(np.array([key, closed]), 1.0, finger_speed=0.15)
         grip = np.vstack([grip, [grip[-1, 0] + 0.3, *closed]])  # dwell: let the grip settle
         lift = tr.time_parameterize(np.array([closed, lifted]), 0.15)
-        return tr.concatenate(move, tail, grip, lift)
+        return tr.concatenate(move, tail, grip, lift), t_pre
     if name == "stack":
         down = key.copy(); down[4] = CLOSED
         up = key.copy(); up[2] = max(spec.carry_height, key[2] + 0.10)
@@ -63,7 +74,7 @@ def action_trajectory(spec: ContainerSpec, config: Configuration, action: str, k
         release = tr.time_parameterize(np.array([down, key]), 1.0, finger_speed=0.15)
         release = np.vstack([release, [release[-1, 0] + 0.2, *key]])
         leave = tr.time_parameterize(np.array([key, up]), 0.15)
-        return tr.concatenate(move, tail, release, leave)
+        return tr.concatenate(move, tail, release, leave), t_pre
     # push: descend behind the container, stroke to the target, back off and rise.
     end = key.copy(); end[0] = push_end_x(spec, config, action, key)
     d = np.sign(end[0] - key[0]) or 1.0
@@ -72,4 +83,4 @@ def action_trajectory(spec: ContainerSpec, config: Configuration, action: str, k
     descend = tr.time_parameterize(np.array([pre, key]), 0.15)
     stroke = tr.trapezoid_stroke(key, end, spec.push_speed, spec.push_accel, 0.0)
     retreat = tr.time_parameterize(np.array([end, back, up]), 0.2)
-    return tr.concatenate(move, descend, stroke, retreat)
+    return tr.concatenate(move, descend, stroke, retreat), t_pre

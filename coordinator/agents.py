@@ -1,0 +1,41 @@
+"""One loop, four agents: TMOC and its baselines are switches of the same code (DESIGN sec. 4)."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+
+@dataclass(frozen=True)
+class AgentSpec:
+    """What an agent learns and how it chooses plans and grasp poses.
+
+    learn_belief:   keep particles over L and reweight them (learns L and so Y)
+    sim_experience: feed the particles' simulated transitions into T
+    planner:        "optimal" (max expected utility under T) or "satisficing" (random valid)
+    grasp:          "belief" (weighted mean of Y over particles), "prior_mean" (Y at the
+                    prior mean, never updated) or "random" (Y at a size drawn uniformly from
+                    the prior range each action: a random grasp within a reasonable range)
+    """
+
+    name: str
+    learn_belief: bool
+    sim_experience: bool
+    planner: str
+    grasp: str
+
+
+AGENTS: dict[str, AgentSpec] = {
+    "tmoc": AgentSpec("tmoc", learn_belief=True, sim_experience=True, planner="optimal", grasp="belief"),
+    # TMP-RL: L stays at the prior mean; T from real experience only.
+    "tmp_rl": AgentSpec("tmp_rl", learn_belief=False, sim_experience=False, planner="optimal",
+                        grasp="prior_mean"),
+    # GP: learns L like TMOC but picks a random satisficing plan (no task-level learning).
+    "gp": AgentSpec("gp", learn_belief=True, sim_experience=True, planner="satisficing", grasp="belief"),
+    # TOEP: no Y learning; random grasp pose in a reasonable range; T from real experience.
+    "toep": AgentSpec("toep", learn_belief=False, sim_experience=False, planner="optimal", grasp="random"),
+}
+
+
+def agent(name: str) -> AgentSpec:
+    if name not in AGENTS:
+        raise ValueError(f"agent: unknown agent {name!r} (known: {', '.join(AGENTS)})")
+    return AGENTS[name]

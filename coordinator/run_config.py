@@ -1,0 +1,40 @@
+"""A task's settings as one validated, JSON-able record (pydantic)."""
+from __future__ import annotations
+
+from typing import Literal
+
+from pydantic import BaseModel, ConfigDict, Field
+
+DEFAULT_COSTS = {"pickup": 15.0, "stack": 10.0, "push": 30.0, "fail": 50.0, "deliver": 40.0,
+                 "all_delivered": 80.0}
+
+
+class Costs(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+    pickup: float = Field(15.0, ge=0, le=1e4)
+    stack: float = Field(10.0, ge=0, le=1e4)
+    push: float = Field(30.0, ge=0, le=1e4)
+    fail: float = Field(50.0, ge=0, le=1e4)
+    deliver: float = Field(40.0, ge=0, le=1e4)
+    all_delivered: float = Field(80.0, ge=0, le=1e4)
+
+
+class RunConfig(BaseModel):
+    """Everything that determines a run; with the same values a run is reproducible."""
+
+    model_config = ConfigDict(extra="forbid")
+    domain: Literal["container"] = "container"
+    agent: Literal["tmoc", "tmp_rl", "gp", "toep"] = "tmoc"
+    particles: int = Field(48, ge=1, le=5000)
+    episodes: int = Field(8, ge=1, le=100000)
+    seed: int = Field(0, ge=0, le=2**63 - 1)
+    n_blocks: int = Field(8, ge=1, le=16)
+    true_size: float = Field(0.045, ge=0.02, le=0.08)
+    sizes_variation: bool = False
+    likelihood: Literal["replay", "paper"] = "replay"
+    max_steps: int = Field(60, ge=1, le=1000)
+    error_rate: float = Field(0.05, gt=0, lt=0.5)
+    use_measurements: bool = True
+    sim_weight: float = Field(1.0, ge=0, le=100)
+    costs: Costs = Costs()
+    shards: int | None = Field(None, ge=0, le=4096)

@@ -1,0 +1,283 @@
+"""The TMOC loop (Algorithm 1 of Ding et al. 2022) as a resumable session.
+
+``next_step()`` returns the pending action with its pose, trajectory and expected effect;
+``observe(observation)`` takes what the real world reported and does the rest of the step:
+particle worlds replay the action (one Ray call per shard), the belief is reweighted and
+resampled, the experience pool and T are updated, and the plan is kept or replanned. A
+driver (``run_episode`` with a SimulatedReality, or the HTTP service for a real robot)
+calls the two in turn.
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from planner import symbolic
+from planner import task_planner
+from planner.motion import Bounds, MotionPlanningError, box_checker, plan_transit
+from sim_workers.configuration import Configuration
+from sim_workers.domains import load
+
+from .agents import agent as agent_spec
+from .belief import Belief, gaussian_log_likelihood, symbolic_log_likelihood
+from .experience import ExperiencePool
+from .reality import Observation
+from .run_config import RunConfig
+from .transition_model import TransitionModel
+
+WORKSPACE = Bounds(np.array([-0.5, -0.6, 0.0, -np.pi]), np.array([1.2, 0.6, 0.6, np.pi]))
+
+
+@dataclass
+class PendingStep:
+    action: str
+    pose: np.ndarray              # the real pose x: weighted mean of the particles' Y
+    trajectory: np.ndarray        # (T, 6) t, x, y, z, yaw, opening
+    expected: frozenset[str]      # the planned effect
+    transit_end: float            # when the free-space transit ends
+    particle_poses: np.ndarray | None = None
+
+    def to_dict(self) -> dict:
+        return {"action": self.action, "pose": self.pose.tolist(),
+                "trajectory": self.trajectory.tolist(), "expected": sorted(self.expected)}
+
+
+@dataclass
+class EpisodeStats:
+    utility: float = 0.0
+    actions: int = 0
+    failures: dict = field(default_factory=dict)
+    loads: list = field(default_factory=list)
+    delivered: int = 0
+    plans: list = field(default_factory=list)
+    wall_s: float = 0.0
+    physics_s: float = 0.0
+    planning_s: float = 0.0
+    real_s: float = 0.0
+
+
+class Session:
+    """One task's learning state: belief over L, experience pool, T, and the episode."""
+
+    def __init__(self, config: RunConfig, pool=None) -> None:
+        self.config = config
+        self.agent = agent_spec(config.agent)
+        self.domain = load(config.domain, n_blocks=config.n_blocks)
+        self.n_blocks = config.n_blocks
+        self.pool = pool
+        seq = np.random.SeedSequence(config.seed)
+        self.rng = np.random.default_rng(seq.spawn(1)[0])
+        spec = self.domain.spec
+        self.dims = self.n_blocks if config.sizes_variation else 1
+        self.low = np.full(self.dims, spec.prior_low)
+        self.high = np.full(self.dims, spec.prior_high)
+        self.belief = (Belief.from_prior(config.particles, self.low, self.high, self.rng)
+                       if self.agent.learn_belief else None)
+        self.experience = ExperiencePool()
+        self.transition = TransitionModel(self.n_blocks)
+        self.episode = 0
+        self.episodes: list[dict] = []
+        self.particle_actions = 0
+        # Episode state.
+        self.observation: Observation | None = None
+        self.plan: list[str] = []
+        self.pending: PendingStep | None = None
+        self.stats = EpisodeStats()
+        self._t0 = 0.0
+
+    # -- particles -----------------------------------------------------------------------
+    def particle_sizes(self) -> np.ndarray:
+        """(N, n_blocks) block sizes of every particle."""
+        return np.broadcast_to(self.belief.particles, (len(self.belief.particles), self.n_blocks)) \
+            if self.dims == 1 else self.belief.particles
+
+    def _props(self, sizes: np.ndarray) -> dict:
+        return {"block_sizes": np.broadcast_to(sizes, (self.n_blocks,))}
+
+    def believed_sizes(self) -> np.ndarray:
+        if self.belief is None:
+            return np.full(self.n_blocks, (self.domain.spec.prior_low + self.domain.spec.prior_high) / 2)
+        return np.broadcast_to(self.belief.weighted_mean(self.belief.particles, angular=()),
+                               (self.n_blocks,)).copy()
+
+    # -- episode -------------------------------------------------------------------------
+    def start_episode(self, observation: Observation) -> None:
+        self.observation = observation
+        self.plan = []
+        self.pending = None
+        self.stats = EpisodeStats()
+        self._t0 = time.perf_counter()
+
+    @property
+    def state(self) -> frozenset[str]:
+        return self.observation.state
+
+    def episode_done(self) -> bool:
+        return symbolic.is_goal(self.state) or self.stats.actions >= self.config.max_steps
+
+    def _replan(self) -> None:
+        t0 = time.perf_counter()
+        costs = self.config.costs.model_dump()
+        T = self.transition.to_planner()
+        if self.agent.planner == "satisficing":
+            plan = task_planner.satisficing(self.state, rng=self.rng, transition=T, costs=costs)
+        else:
+            plan = task_planner.plan(self.state, T, costs)
+        self.plan = list(plan.actions)
+        self.stats.plans.append(list(plan.loads))
+        self.stats.planning_s += time.perf_counter() - t0
+
+    def _key_pose(self, config: Configuration, action: str) -> tuple[np.ndarray, np.ndarray | None]:
+        """Step 2 of the loop: the real pose x and (for TMOC) each particle's x_i."""
+        spec = self.domain.spec
+        mode = self.agent.grasp
+        if mode == "belief":
+            sizes = self.particle_sizes()
+            poses = np.array([self.domain.action_pose(self._props(s), config, action) for s in sizes])
+            return self.belief.weighted_mean(poses, angular=(3,)), poses
+        if mode == "random":
+            s = self.rng.uniform(spec.prior_low, spec.prior_high, self.n_blocks)
+            return self.domain.action_pose(self._props(s), config, action), None
+        return self.domain.action_pose(self._props(self.believed_sizes()), config, action), None
+
+    def _transit(self, config: Configuration, pre: np.ndarray) -> np.ndarray | None:
+        """RRT* (or its straight shortcut) to the pre-pose among the observed obstacles."""
+        t0 = time.perf_counter()
+        try:
+            size = float(np.max(self.believed_sizes()))
+            checker = box_checker(self.domain.obstacles(config, size),
+                                  gripper_half_extents=(0.02, 0.06, 0.03))
+            start = config.robot[:4].copy()
+            start[2] = max(start[2], self.domain.spec.carry_height)
+            path = plan_transit(start, pre[:4], checker, WORKSPACE,
+                                seed=int(self.rng.integers(2**31)), iterations=200)
+            return np.vstack([config.robot[:4], path])
+        except MotionPlanningError:
+            return None           # the default up-across-down transit is always safe
+        finally:
+            self.stats.planning_s += time.perf_counter() - t0
+
+    def next_step(self) -> PendingStep | None:
+        """The next action with its pose, trajectory and expected effect (None: episode over)."""
+        if self.pending is not None:
+            return self.pending
+        if self.episode_done():
+            return None
+        if not self.plan:
+            self._replan()
+        action = self.plan[0]
+        config = self.observation.configuration
+        x, xs = self._key_pose(config, action)
+        pre = self.domain.pre_pose(config, action, x)
+        transit = self._transit(config, pre)
+        traj = self.domain.action_trajectory(config, action, x, transit)
+        t_pre = self.domain.transit_end_time(config, action, x, transit)
+        expected = symbolic.apply(self.state, action)
+        self.pending = PendingStep(action, x, traj, expected, t_pre, xs)
+        return self.pending
+
+    def observe(self, observation: Observation) -> dict:
+        """Steps 3-6 of the loop for the pending action, given the real outcome."""
+        step = self.pending
+        if step is None:
+            raise RuntimeError("observe() without a pending step")
+        before = self.observation
+        success = observation.state == step.expected
+        report = {"action": step.action, "success": success, "state": sorted(observation.state)}
+        if self.belief is not None and self.pool is not None:
+            report.update(self._reweight(before, step, observation))
+        self.experience.add_real(before.state, step.action, observation.state, step.expected)
+        self.transition = TransitionModel.from_experience(
+            self.experience, self.n_blocks,
+            sim_weight=self.config.sim_weight if self.agent.sim_experience else 0.0)
+        self._account(before.state, step, observation.state, success)
+        self.observation = observation
+        self.pending = None
+        if success:
+            self.plan.pop(0)
+        else:
+            self.plan = []       # step 6: replan from what was observed
+        if self.episode_done():
+            report["episode"] = self._finish_episode()
+        return report
+
+    def _reweight(self, before: Observation, step: PendingStep, observation: Observation) -> dict:
+        t0 = time.perf_counter()
+        sizes = np.ascontiguousarray(self.particle_sizes())
+        start = before.configuration.to_array()
+        if self.config.likelihood == "replay":
+            res = self.pool.simulate(start, sizes, step.action, step.trajectory, step.transit_end)
+        else:  # "paper": each particle runs its own trajectory to its own pose x_i
+            trajs = np.array([self.domain.action_trajectory(before.configuration, step.action, xi)
+                              for xi in step.particle_poses])
+            t_pre = [self.domain.transit_end_time(before.configuration, step.action, xi)
+                     for xi in step.particle_poses]
+            res = self.pool.simulate(start, sizes, step.action, trajs, np.array(t_pre))
+        self.stats.physics_s += time.perf_counter() - t0
+        self.particle_actions += len(sizes)
+        loglik = symbolic_log_likelihood(observation.state, res["states"], self.config.error_rate)
+        if self.config.use_measurements:
+            loglik = loglik + gaussian_log_likelihood(observation.measurements, res["measurements"],
+                                                      self.domain.measurement_sigma())
+        self.belief.update(loglik)
+        if self.agent.sim_experience:
+            self.experience.add_simulated(before.state, step.action, res["states"], step.expected,
+                                          self.belief.weights)
+        resampled = self.belief.maybe_resample(self.rng)
+        return {"ess": float(self.belief.ess()), "resampled": bool(resampled)}
+
+    def _account(self, state, step: PendingStep, next_state, success: bool) -> None:
+        c = self.config.costs
+        name = step.action.split("(", 1)[0]
+        s = self.stats
+        s.actions += 1
+        s.utility -= getattr(c, name)
+        if not success:
+            s.utility -= c.fail
+            s.failures[name] = s.failures.get(name, 0) + 1
+        if step.action.startswith("push") and step.action.endswith("goal)"):
+            s.loads.append(sum(a.startswith("at_container(") for a in state))
+        delivered = lambda st: sum(a.startswith("is_in(b") and a.endswith(",goal)") for a in st)
+        gained = delivered(next_state) - delivered(state)
+        s.utility += c.deliver * gained
+        s.delivered += gained
+        if symbolic.is_goal(next_state):
+            s.utility += c.all_delivered
+
+    def posterior(self) -> dict:
+        if self.belief is None:
+            m = float(self.believed_sizes()[0])
+            return {"size_mean": m, "size_std": 0.0}
+        summ = self.belief.summary()
+        return {"size_mean": float(np.mean(summ["mean"])), "size_std": float(np.mean(summ["std"])),
+                "mean": [float(v) for v in summ["mean"]], "std": [float(v) for v in summ["std"]]}
+
+    def _finish_episode(self) -> dict:
+        s = self.stats
+        s.wall_s = time.perf_counter() - self._t0
+        record = {
+            "episode": self.episode, "utility": s.utility, "actions": s.actions,
+            "failures": dict(s.failures), "loads": list(s.loads), "delivered": s.delivered,
+            "plans": s.plans, "posterior": self.posterior(),
+            "ess": float(self.belief.ess()) if self.belief is not None else None,
+            "wall_s": s.wall_s, "physics_s": s.physics_s, "planning_s": s.planning_s,
+        }
+        self.episodes.append(record)
+        self.episode += 1
+        return record
+
+    def run_episode(self, reality, reality_rng: np.random.Generator) -> dict:
+        """Drive one episode against `reality` (SimulatedReality or anything alike)."""
+        self.start_episode(reality.start_episode(reality_rng))
+        while True:
+            step = self.next_step()
+            if step is None:          # done before acting (e.g. nothing left to deliver)
+                return self._finish_episode()
+            t0 = time.perf_counter()
+            obs = reality.execute(step.trajectory, step.action)
+            self.stats.real_s += time.perf_counter() - t0
+            report = self.observe(obs)
+            if "episode" in report:
+                return report["episode"]

@@ -1,0 +1,280 @@
+"""Motion planner: OMPL RRT* transit, checked approaches, shared per-action planning."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from planner.motion import (
+    Bounds,
+    MotionPlanningError,
+    TransitReport,
+    box_checker,
+    interpolate_config,
+    plan_action,
+    plan_approach,
+    plan_transit,
+    unwrap_yaw,
+)
+
+BOUNDS = Bounds(np.array([-0.6, -0.6, 0.0, -math.pi]), np.array([0.6, 0.6, 0.8, math.pi]))
+GRIPPER = (0.02, 0.06, 0.03)
+# A wall across the straight line from START to GOAL: the planner must go over or round it.
+WALL = ((0.0, 0.0, 0.25), (0.05, 0.4, 0.25))
+START = np.array([-0.3, 0.0, 0.1, 0.0])
+GOAL = np.array([0.3, 0.1, 0.1, 3.0])
+FAST = dict(iterations=300)  # enough for this scene; keeps the file fast
+
+
+def wall_checker():
+    return box_checker([WALL], GRIPPER)
+
+
+def yaw_diff(a: float, b: float) -> float:
+    """Short signed angle from a to b, computed independently of the module."""
+    return math.atan2(math.sin(b - a), math.cos(b - a))
+
+
+def assert_path_valid(path: np.ndarray, is_valid, *, sub: int = 25) -> None:
+    """Every waypoint and `sub` states inside every segment (yaw the short way) are valid."""
+    for i, q in enumerate(path):
+        assert is_valid(q), f"waypoint {i} {q} in collision"
+    for i, (a, b) in enumerate(zip(path[:-1], path[1:])):
+        dyaw = yaw_diff(a[3], b[3])
+        for t in np.linspace(0.0, 1.0, sub + 2)[1:-1]:
+            q = a + t * (b - a)
+            q[3] = a[3] + t * dyaw
+            assert is_valid(q), f"segment {i} at t={t:.3f} ({q}) in collision"
+
+
+def assert_resolution(path: np.ndarray, resolution: float, yaw_weight: float = 0.1) -> None:
+    dpos = np.linalg.norm(np.diff(path[:, :3], axis=0), axis=1)
+    dyaw = np.array([abs(yaw_diff(a, b)) for a, b in zip(path[:-1, 3], path[1:, 3])])
+    assert dpos.max() <= resolution + 1e-12
+    assert dyaw.max() <= resolution / yaw_weight + 1e-12
+
+
+@pytest.fixture(scope="module")
+def wall_plan() -> tuple[np.ndarray, list[TransitReport]]:
+    reports: list[TransitReport] = []
+    path = plan_transit(START, GOAL, wall_checker(), BOUNDS, seed=7, on_report=reports.append, **FAST)
+    return path, reports
+
+
+# ----------------------------------------------------------------------------- transit
+
+
+def test_transit_detours_round_wall_and_is_collision_free(wall_plan):
+    path, reports = wall_plan
+    chk = wall_checker()
+    assert not chk(interpolate_config(START, GOAL, 0.5))  # the straight line is blocked
+    assert len(reports) == 1 and reports[0].method == "rrtstar" and reports[0].exact
+    assert not reports[0].time_cap_hit and reports[0].iterations == FAST["iterations"]
+    assert path.dtype == np.float64 and path.ndim == 2 and path.shape[1] == 4
+    # exact endpoints, bit for bit
+    assert path[0].tobytes() == START.tobytes()
+    assert path[-1].tobytes() == GOAL.tobytes()
+    assert_path_valid(path, chk)
+    assert_resolution(path, 0.01)
+    # a real detour: longer than the blocked straight line
+    assert reports[0].path_length > np.linalg.norm(GOAL[:3] - START[:3]) + 0.05
+
+
+def test_same_seed_same_path_different_seed_different_path(wall_plan):
+    path, _ = wall_plan
+    chk = wall_checker()
+    other = plan_transit(START, GOAL, chk, BOUNDS, seed=8, **FAST)
+    again = plan_transit(START, GOAL, chk, BOUNDS, seed=7, **FAST)  # after another seed ran
+    assert again.shape == path.shape and again.tobytes() == path.tobytes()
+    assert other.shape != path.shape or not np.array_equal(other, path)
+
+
+def test_goal_in_obstacle_raises_naming_goal():
+    with pytest.raises(MotionPlanningError, match=r"^goal \(x=0\.0000.*\) is in collision"):
+        plan_transit(START, [0.0, 0.0, 0.2, 0.0], wall_checker(), BOUNDS, seed=1)
+    with pytest.raises(MotionPlanningError, match=r"^start .* is in collision"):
+        plan_transit([0.0, 0.3, 0.3, 0.0], GOAL, wall_checker(), BOUNDS, seed=1)
+
+
+def test_out_of_bounds_names_the_coordinate():
+    with pytest.raises(MotionPlanningError, match=r"^goal .* out of bounds on z \(z=0\.9"):
+        plan_transit(START, [0.3, 0.1, 0.9, 0.0], wall_checker(), BOUNDS, seed=1)
+    with pytest.raises(MotionPlanningError, match=r"^start .* out of bounds on x .*, y "):
+        plan_transit([-0.7, 0.7, 0.1, 0.0], GOAL, wall_checker(), BOUNDS, seed=1)
+    # yaw wraps with full-turn bounds: any angle is in bounds
+    path = plan_transit([0.3, 0.3, 0.6, 4.0], [0.3, -0.3, 0.6, -4.0], wall_checker(), BOUNDS, seed=1)
+    assert path[0, 3] == 4.0 and path[-1, 3] == -4.0
+
+
+@pytest.mark.parametrize("bad, match", [
+    ([0.0, 0.0, 0.1], r"start must be a finite array of shape \(4,\), got shape \(3,\)"),
+    ([0.0, np.nan, 0.1, 0.0], "start must be finite"),
+    ("abc", "start must be a finite array"),
+])
+def test_malformed_configuration(bad, match):
+    with pytest.raises(MotionPlanningError, match=match):
+        plan_transit(bad, GOAL, wall_checker(), BOUNDS, seed=1)
+
+
+def test_no_path_within_budget_is_an_error():
+    # the goal sits in a closed cage (free inside, so only the search can fail)
+    cage = [((0.3, 0.0, 0.2), (0.12, 0.12, 0.01)), ((0.3, 0.0, 0.0), (0.12, 0.12, 0.01)),
+            ((0.42, 0.0, 0.1), (0.01, 0.12, 0.11)), ((0.18, 0.0, 0.1), (0.01, 0.12, 0.11)),
+            ((0.3, 0.12, 0.1), (0.12, 0.01, 0.11)), ((0.3, -0.12, 0.1), (0.12, 0.01, 0.11))]
+    chk = box_checker(cage, gripper_radius=0.02)
+    with pytest.raises(MotionPlanningError, match=r"no collision-free path .* within 200 RRT\* iterations"):
+        plan_transit(START, [0.3, 0.0, 0.1, 0.0], chk, BOUNDS, seed=1, iterations=50, max_iterations=200)
+
+
+def test_straight_segment_shortcut_and_yaw_short_way():
+    reports: list[TransitReport] = []
+    start, goal = np.array([-0.3, 0.3, 0.6, 3.0]), np.array([0.3, 0.3, 0.6, -3.0])
+    path = plan_transit(start, goal, wall_checker(), BOUNDS, seed=1, on_report=reports.append)
+    assert reports[0].method == "straight"
+    assert path[0].tobytes() == start.tobytes() and path[-1].tobytes() == goal.tobytes()
+    assert_path_valid(path, wall_checker())
+    assert_resolution(path, 0.01)
+    # 3.0 -> -3.0 turns +0.28 rad through pi, not -6 rad
+    cont = unwrap_yaw(path)
+    assert cont[-1, 3] == pytest.approx(2 * math.pi - 3.0)
+    assert np.all(np.diff(cont[:, 3]) >= 0)
+    # shortcut=False forces RRT* even when the straight line is free
+    reports.clear()
+    plan_transit(start, goal, wall_checker(), BOUNDS, seed=1, shortcut=False,
+                 on_report=reports.append, iterations=50)
+    assert reports[0].method == "rrtstar"
+
+
+def test_bounded_yaw_does_not_wrap_and_rrtstar_works():
+    bounds = Bounds(np.array([-0.6, -0.6, 0.0, -1.5]), np.array([0.6, 0.6, 0.8, 1.5]))
+    start, goal = np.array([-0.3, 0.0, 0.1, -1.2]), np.array([0.3, 0.1, 0.1, 1.2])
+    path = plan_transit(start, goal, wall_checker(), bounds, seed=3, **FAST)
+    assert path[0].tobytes() == start.tobytes() and path[-1].tobytes() == goal.tobytes()
+    assert np.all(path[:, 3] >= -1.5) and np.all(path[:, 3] <= 1.5)
+    # without wrapping, yaw moves linearly between waypoints
+    for i, (a, b) in enumerate(zip(path[:-1], path[1:])):
+        for t in np.linspace(0, 1, 12)[1:-1]:
+            assert wall_checker()(a + t * (b - a)), f"segment {i}"
+    with pytest.raises(MotionPlanningError, match="out of bounds on yaw"):
+        plan_transit(start, [0.3, 0.1, 0.1, 2.0], wall_checker(), bounds, seed=3)
+
+
+def test_validity_callable_errors_propagate():
+    chk = wall_checker()
+    calls = [0]
+
+    def flaky(q: np.ndarray) -> bool:
+        calls[0] += 1
+        if calls[0] > 500:
+            raise RuntimeError("collision query died")
+        return chk(q)
+
+    with pytest.raises(RuntimeError, match="collision query died"):
+        plan_transit(START, GOAL, flaky, BOUNDS, seed=1, **FAST)
+
+
+def test_validity_callable_gets_4_arrays():
+    seen: list[np.ndarray] = []
+    chk = wall_checker()
+
+    def spy(q):
+        seen.append(q)
+        return chk(q)
+
+    reports: list[TransitReport] = []
+    plan_transit(START, GOAL, spy, BOUNDS, seed=2, iterations=30, on_report=reports.append)
+    assert reports[0].validity_calls == len(seen)
+    assert seen and all(isinstance(q, np.ndarray) and q.shape == (4,) and q.dtype == np.float64
+                        for q in seen[:1000])
+
+
+# ----------------------------------------------------------------------------- approach + action
+
+
+def test_plan_approach_segment():
+    chk = wall_checker()
+    pre, pose = np.array([0.3, 0.2, 0.3, 0.5]), np.array([0.31, 0.19, 0.12, 0.4])
+    seg = plan_approach(pre, pose, chk)
+    assert seg[0].tobytes() == pre.tobytes() and seg[-1].tobytes() == pose.tobytes()
+    assert_resolution(seg, 0.01)
+    assert_path_valid(seg, chk)
+    block = box_checker([((0.3, 0.2, 0.2), (0.03, 0.03, 0.01))], GRIPPER)
+    with pytest.raises(MotionPlanningError, match=r"approach .* is blocked at \(x=0\.30"):
+        plan_approach(pre, pose, block)
+
+
+def test_plan_action_plans_transit_once_and_approaches_per_particle():
+    # a small block hangs under the pre-pose on the -y side: it blocks particle 2's approach
+    hang = ((0.3, 0.05, 0.2), (0.02, 0.02, 0.01))
+    chk = box_checker([WALL, hang], GRIPPER)
+    calls = [0]
+
+    def counted(q: np.ndarray) -> bool:
+        calls[0] += 1
+        return chk(q)
+
+    pre = np.array([0.3, 0.15, 0.3, 0.0])
+    particles = np.array([
+        [0.30, 0.15, 0.10, 0.0],
+        [0.32, 0.16, 0.11, 0.1],
+        [0.30, -0.05, 0.10, 0.0],   # straight line passes through `hang`
+        [0.30, 0.15, -0.05, 0.0],   # below the table bound
+        [0.28, 0.14, 0.09, -0.1],
+    ])
+    reports: list[TransitReport] = []
+    transit, approaches = plan_action(START, pre, particles, counted, BOUNDS, seed=5,
+                                      on_report=reports.append, **FAST)
+    # one transit planning run (one RRT*) for the whole action
+    assert len(reports) == 1 and reports[0].method == "rrtstar"
+    transit_calls = reports[0].validity_calls
+    assert transit[0].tobytes() == START.tobytes() and transit[-1].tobytes() == pre.tobytes()
+    assert_path_valid(transit, chk)
+    assert len(approaches) == len(particles)
+    assert approaches[2] is None and approaches[3] is None
+    for i in (0, 1, 4):
+        seg = approaches[i]
+        assert seg is not None
+        assert seg[0].tobytes() == pre.tobytes() and seg[-1].tobytes() == particles[i].tobytes()
+        assert_path_valid(seg, chk)
+    # the approaches are short checks, not new searches: a few dozen calls per particle
+    approach_calls = calls[0] - transit_calls
+    assert 0 < approach_calls < 60 * len(particles) < transit_calls
+    # deterministic as a whole
+    transit2, approaches2 = plan_action(START, pre, particles, chk, BOUNDS, seed=5, **FAST)
+    assert transit2.tobytes() == transit.tobytes()
+    assert all((a is None and b is None) or a.tobytes() == b.tobytes()
+               for a, b in zip(approaches, approaches2))
+
+
+def test_plan_action_rejects_bad_particles():
+    with pytest.raises(MotionPlanningError, match=r"particle_poses must have shape \(N, 4\)"):
+        plan_action(START, GOAL, np.zeros((3, 3)), wall_checker(), BOUNDS, seed=1)
+    with pytest.raises(MotionPlanningError, match="row 1 is not"):
+        plan_action(START, GOAL, np.array([GOAL, [np.inf, 0, 0, 0]]), wall_checker(), BOUNDS, seed=1)
+
+
+# ----------------------------------------------------------------------------- checker + bounds
+
+
+def test_box_checker_geometry():
+    slot = [((0.0, 0.1, 0.0), (0.2, 0.05, 0.1)), ((0.0, -0.1, 0.0), (0.2, 0.05, 0.1))]
+    chk = box_checker(slot, (0.02, 0.06, 0.03))  # long along its own y
+    assert not chk(np.array([0.0, 0.0, 0.0, 0.0]))           # spans the 0.1 m gap: hits both
+    assert chk(np.array([0.0, 0.0, 0.0, math.pi / 2]))       # turned, it fits the gap
+    assert not chk(np.array([0.0, 0.0, 0.0, math.pi / 4]))   # diagonal: corner hits
+    assert chk(np.array([0.0, 0.0, 0.2, 0.0]))               # above the slot
+    assert not chk(np.array([0.0, 0.0, np.nan, 0.0]))
+    sphere = box_checker(slot, gripper_radius=0.04)
+    assert chk is not sphere and sphere(np.array([0.0, 0.0, 0.0, 0.0]))
+    assert not sphere(np.array([0.0, 0.0, 0.0, 0.0]) + [0, 0.02, 0, 0])
+    assert not box_checker(slot, gripper_radius=0.04, margin=0.02)(np.zeros(4))
+
+
+def test_bounds_validation():
+    with pytest.raises(MotionPlanningError, match="bounds on z are empty"):
+        Bounds(np.array([0, 0, 1, -3]), np.array([1, 1, 1, 3]))
+    with pytest.raises(MotionPlanningError, match="shape"):
+        Bounds(np.zeros(3), np.ones(3))
+    b = Bounds([0, 0, 0, -math.pi], [1, 1, 1, math.pi])
+    assert b.yaw_wraps and not b.low.flags.writeable
