@@ -32,7 +32,7 @@ def validate_sizes(sizes, n_blocks: int, field: str = "block_sizes") -> np.ndarr
     if low.any() or high.any():
         i = int(np.flatnonzero(low | high)[0])
         raise PropertyError(
-            f"{field}[{i}]: {arr[i]!r} m is outside [{MIN_SIZE_M}, {MAX_SIZE_M}] m")
+            f"{field}[{i}]: {float(arr[i])!r} m is outside [{MIN_SIZE_M}, {MAX_SIZE_M}] m")
     return arr
 
 

@@ -121,9 +121,15 @@ class ContainerDomain:
         """
         return np.concatenate([[config.robot[4]], config.objects[1:, :2].ravel()])
 
-    def measurement_sigma(self) -> np.ndarray:
-        """Noise std of each measurement (m): 2 mm on the opening, 1 cm on positions."""
-        return np.concatenate([[0.002], np.full(2 * self.spec.n_blocks, 0.01)])
+    def measurement_model(self) -> tuple[np.ndarray, np.ndarray]:
+        """(indices, std) of the measurements the belief's Gaussian likelihood uses.
+
+        Only the finger opening (std 2 mm). Block positions after a push or a fall are
+        chaotic: weighting particles by where each block happened to land rewarded noise
+        and collapsed the belief onto a wrong size in our runs (42.4 +- 0.08 mm for a
+        45 mm truth), so they stay reported but out of the likelihood.
+        """
+        return np.array([0]), np.array([0.002])
 
     def check_action(self, action: str) -> None:
         name, args = state_mapping.parse_action(action)

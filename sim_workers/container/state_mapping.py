@@ -75,6 +75,7 @@ def block_labels(spec: ContainerSpec, config: Configuration) -> list[str]:
         else:
             labels.append(TABLE)
     held = [i for i, label in enumerate(labels) if label == HELD]
+    held.sort(key=lambda i: float(np.linalg.norm(config.objects[1 + i, :3] - config.robot[:3])))
     for i in held[1:]:                       # one hand holds one block; the nearest wins
         labels[i] = TABLE
     return labels

@@ -1,0 +1,316 @@
+"""Particle-actions per second of the container domain's grounded worlds, against raw pybullet.
+
+For each action (pickup, stack, push) one batch of particles (block sizes drawn from the
+prior) replays one trajectory from Y with the true size, starting at the pre-pose (the
+free-space transit is skipped, as particle worlds do). Measured on this machine in one run:
+
+  (a) in-process   one ``sim_workers.shard.Shard`` (one world), the whole batch in one call;
+  (b) ray x2       two shard actors on local Ray (``ray.init(num_cpus=2)``), the batch split
+                   in two, one remote call per actor per action;
+  (c) raw x2       two plain processes (multiprocessing), each with the scene built once by
+                   ``build_scene``, calling ``stepSimulation`` as many times as the shards
+                   reported in ``steps`` for its half, the gripper held static: the physical
+                   limit of stepping this scene on these cores.
+
+Also: the cost of one world reset (a rebuild), the share of in-process time spent inside
+``stepSimulation`` (the rest is resets and per-step Python), and the RSS of each shard
+(``Shard.node()``, peak RSS of its process). The last line is
+``ratio_vs_raw=<ray x2 throughput / raw x2 throughput>`` over all three actions.
+
+    python benchmarks/bench_worlds.py --quick      # under a minute
+    python benchmarks/bench_worlds.py              # larger batches, best of 3 rounds
+"""
+from __future__ import annotations
+
+import argparse
+import multiprocessing as mp
+import os
+import sys
+import time
+
+import numpy as np
+
+os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")
+os.environ.setdefault("RAY_DEDUP_LOGS", "0")
+
+import pybullet as pb  # noqa: E402
+
+from sim_workers.container.scene import build_scene  # noqa: E402
+from sim_workers.domains import load  # noqa: E402
+from sim_workers.grounded_world import GroundedWorld  # noqa: E402
+from sim_workers.probe import loaded_configuration  # noqa: E402
+from sim_workers.shard import Shard, remote_shard  # noqa: E402
+
+ACTIONS = ("pickup", "stack", "push")
+
+
+# -- the workload -------------------------------------------------------------------------
+def make_cases(domain, seed: int) -> dict:
+    """Per action: (flat start configuration, action term, trajectory, start time)."""
+    rng = np.random.default_rng(seed)
+    truth = domain.true_properties()
+    sizes = truth["block_sizes"]
+    cases = {}
+
+    def case(name, config, action):
+        key = domain.action_pose(truth, config, action)
+        traj = domain.action_trajectory(config, action, key)
+        cases[name] = (config.to_array(), action, traj, float(traj[3, 0]))   # 4th row: pre-pose
+
+    case("pickup", domain.initial_configuration(truth), "pickup(r,b3,init)")
+    # Stack onto a pile of two: the start is a real grasp of b3 (observed after a pickup).
+    loaded = loaded_configuration(domain, sizes, 2, rng)
+    with GroundedWorld(domain) as world:
+        world.reset(loaded, truth)
+        action = "pickup(r,b3,init)"
+        key = domain.action_pose(truth, loaded, action)
+        traj = domain.action_trajectory(loaded, action, key)
+        held = world.execute(traj, action, start_time=float(traj[3, 0]))
+    if "is_holding(r,b3)" not in held.state:
+        sys.exit("bench_worlds: the setup pickup for the stack case failed")
+    case("stack", held.configuration, "stack(r,b3,c)")
+    case("push", loaded_configuration(domain, sizes, 4, rng), "push(r,c,init,goal)")
+    return cases
+
+
+def particle_sizes(domain, n: int, seed: int) -> np.ndarray:
+    """(n, n_blocks): one size per particle from the prior, shared by its blocks."""
+    spec = domain.spec
+    s = np.random.default_rng(seed).uniform(spec.prior_low, spec.prior_high, n)
+    return np.repeat(s[:, None], spec.n_blocks, axis=1)
+
+
+# -- (c) raw pybullet stepping in plain processes ------------------------------------------
+def _raw_worker(conn, n_blocks: int) -> None:
+    """Steps one scene with bare ``stepSimulation`` calls; the gripper's target never changes.
+
+    Message ("built", None, n): the scene as ``build_scene`` leaves it (blocks in their row,
+    the gripper up), built once. Message ("start", (start, action, traj, t0), n): the scene
+    put once in the action's start configuration with the gripper at its pre-pose (same
+    bodies in contact as the action starts with), then stepped n times. Replies the seconds
+    spent stepping.
+    """
+    domain = load("container", n_blocks=n_blocks)
+    truth = domain.true_properties()
+    props = domain.properties(truth)
+    client = pb.connect(pb.DIRECT)
+    build_scene(client, domain.spec, props["block_sizes"], props["block_masses"])
+    step = pb.stepSimulation
+    for _ in range(50):
+        step(physicsClientId=client)
+    placed = {}
+    conn.send("ready")
+    while True:
+        msg = conn.recv()
+        if msg is None:
+            break
+        mode, case, n = msg
+        if mode == "built":
+            cid = client
+        else:
+            start, action, traj, t0 = case
+            if action not in placed:
+                from sim_workers.configuration import Configuration
+                world = GroundedWorld(domain)
+                world.reset(Configuration.from_array(start), truth)
+                world.skip_to(traj, t0)
+                placed[action] = world
+            cid = placed[action].client
+        tic = time.perf_counter()
+        for _ in range(n):
+            step(physicsClientId=cid)
+        conn.send(time.perf_counter() - tic)
+    pb.disconnect(client)
+
+
+class RawPool:
+    """Plain processes, one pybullet scene each, built once."""
+
+    def __init__(self, n: int, n_blocks: int) -> None:
+        ctx = mp.get_context("spawn")
+        self.conns, self.procs = [], []
+        for _ in range(n):
+            parent, child = ctx.Pipe()
+            p = ctx.Process(target=_raw_worker, args=(child, n_blocks), daemon=True)
+            p.start()
+            self.conns.append(parent)
+            self.procs.append(p)
+        for c in self.conns:
+            assert c.recv() == "ready"
+
+    def step(self, counts, mode: str = "built", case=None) -> float:
+        """Wall time for the workers to step counts[i] times each, in parallel."""
+        if mode == "start":                      # place the scene first, outside the timing
+            for c in self.conns:
+                c.send((mode, case, 0))
+            for c in self.conns:
+                c.recv()
+        t0 = time.perf_counter()
+        for c, n in zip(self.conns, counts):
+            c.send((mode, case, int(n)))
+        for c in self.conns:
+            c.recv()
+        return time.perf_counter() - t0
+
+    def close(self) -> None:
+        for c in self.conns:
+            c.send(None)
+        for p in self.procs:
+            p.join(10)
+
+
+# -- measurements -------------------------------------------------------------------------
+class StepTimer:
+    """Counts the time spent inside pybullet.stepSimulation (patched for one block)."""
+
+    def __init__(self) -> None:
+        self.total = 0.0
+        self._orig = None
+
+    def __enter__(self):
+        self._orig = pb.stepSimulation
+        orig, perf = self._orig, time.perf_counter
+
+        def timed(*a, **k):
+            t = perf()
+            out = orig(*a, **k)
+            self.total += perf() - t
+            return out
+
+        pb.stepSimulation = timed
+        return self
+
+    def __exit__(self, *exc):
+        pb.stepSimulation = self._orig
+
+
+def reset_ms(domain, cases, n: int, seed: int) -> float:
+    start = cases["push"][0]
+    from sim_workers.configuration import Configuration
+    config = Configuration.from_array(start)
+    sizes = particle_sizes(domain, n, seed)
+    with GroundedWorld(domain) as w:
+        w.reset(config, {"block_sizes": sizes[0]})
+        t0 = time.perf_counter()
+        for row in sizes:
+            w.reset(config, {"block_sizes": row})
+        return (time.perf_counter() - t0) / n * 1e3
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--quick", action="store_true", help="small batches, one round (< 1 minute)")
+    ap.add_argument("--batch", type=int, default=None, help="particles per action (default 64, quick 32)")
+    ap.add_argument("--rounds", type=int, default=None, help="rounds, best kept (default 3, quick 2)")
+    ap.add_argument("--seed", type=int, default=0)
+    args = ap.parse_args(argv)
+    batch = args.batch or (32 if args.quick else 64)
+    rounds = args.rounds or (2 if args.quick else 3)
+    if batch < 2 or rounds < 1:
+        ap.error("--batch must be at least 2 and --rounds at least 1")
+    t_start = time.perf_counter()
+
+    domain = load("container")
+    cases = make_cases(domain, args.seed)
+    sizes = particle_sizes(domain, batch, args.seed + 1)
+    halves = (slice(0, batch // 2), slice(batch // 2, batch))
+
+    # (a) in-process, one world.
+    shard = Shard("container", None, 1)
+    local, steps, physics_share = {}, {}, {}
+    for name in ACTIONS:
+        start, action, traj, t0 = cases[name]
+        shard.simulate(start, sizes[:2], action, traj, t0)          # warm up
+        best = np.inf
+        for _ in range(rounds):
+            with StepTimer() as st:
+                tic = time.perf_counter()
+                out = shard.simulate(start, sizes, action, traj, t0)
+                wall = time.perf_counter() - tic
+            if wall < best:
+                best, physics_share[name] = wall, st.total / wall
+        local[name] = best
+        steps[name] = out["steps"]
+    local_node = shard.node()
+    shard.close()
+    reset = reset_ms(domain, cases, 100 if args.quick else 300, args.seed + 2)
+
+    # (c) raw stepping, 2 processes (before Ray starts, so nothing else competes).
+    raw, raw_start = {}, {}
+    pool = RawPool(2, domain.spec.n_blocks)
+    try:
+        pool.step([1000, 1000])                                     # warm up
+        for name in ACTIONS:
+            counts = [int(steps[name][h].sum()) for h in halves]
+            raw[name] = min(pool.step(counts) for _ in range(rounds))
+            raw_start[name] = min(pool.step(counts, "start", cases[name]) for _ in range(rounds))
+    finally:
+        pool.close()
+
+    # (b) two shard actors on local Ray.
+    import ray
+
+    ray.init(num_cpus=2, include_dashboard=False, logging_level="ERROR", log_to_driver=False)
+    try:
+        Actor = remote_shard(num_cpus=1)
+        actors = [Actor.remote("container", None, 1) for _ in range(2)]
+        ray.get([a.node.remote() for a in actors])                  # actors up, worlds built
+        sharded = {}
+        for name in ACTIONS:
+            start, action, traj, t0 = cases[name]
+            ray.get([a.simulate.remote(start, sizes[:2], action, traj, t0) for a in actors])
+            best = np.inf
+            for _ in range(rounds):
+                tic = time.perf_counter()
+                outs = ray.get([a.simulate.remote(start, sizes[h], action, traj, t0)
+                                for a, h in zip(actors, halves)])
+                best = min(best, time.perf_counter() - tic)
+                got = np.concatenate([o["steps"] for o in outs])
+                if not np.array_equal(got, steps[name]):
+                    sys.exit(f"bench_worlds: {name}: actors' step counts differ from in-process")
+            sharded[name] = best
+        nodes = ray.get([a.node.remote() for a in actors])
+    finally:
+        ray.shutdown()
+
+    # Report.
+    print(f"bench_worlds: container domain, {batch} particles per action (sizes from the prior), "
+          f"best of {rounds} round(s), {os.cpu_count()} cores, pybullet DIRECT, "
+          f"dt {domain.spec.time_step:.5f} s, {domain.spec.solver_iterations} solver iterations")
+    head = (f"{'action':<8}{'steps/pa':>9}{'in-proc':>9}{'physics':>9}{'ray x2':>9}{'raw x2':>9}"
+            f"{'ray/raw':>9}{'raw@start':>11}{'ray/raw@start':>15}")
+    print(head)
+    print(f"{'':<8}{'':>9}{'pa/s':>9}{'share':>9}{'pa/s':>9}{'pa/s':>9}{'':>9}{'x2 pa/s':>11}")
+    tot = {"local": 0.0, "ray": 0.0, "raw": 0.0, "start": 0.0}
+    for name in ACTIONS:
+        t = {"local": local[name], "ray": sharded[name], "raw": raw[name], "start": raw_start[name]}
+        for k in tot:
+            tot[k] += t[k]
+        print(f"{name:<8}{steps[name].mean():>9.0f}{batch / t['local']:>9.1f}"
+              f"{100 * physics_share[name]:>8.0f}%{batch / t['ray']:>9.1f}{batch / t['raw']:>9.1f}"
+              f"{t['raw'] / t['ray']:>9.2f}{batch / t['start']:>11.1f}{t['start'] / t['ray']:>15.2f}")
+    n_all = batch * len(ACTIONS)
+    mean_steps = np.mean(np.concatenate([steps[n] for n in ACTIONS]))
+    print(f"{'all':<8}{mean_steps:>9.0f}{n_all / tot['local']:>9.1f}{'':>9}{n_all / tot['ray']:>9.1f}"
+          f"{n_all / tot['raw']:>9.1f}{tot['raw'] / tot['ray']:>9.2f}{n_all / tot['start']:>11.1f}"
+          f"{tot['start'] / tot['ray']:>15.2f}")
+    print("  physics share: time inside stepSimulation / in-process wall time (the rest: resets,")
+    print("  per-step gripper commands, rest checks, Y^-1). raw x2: the scene as built, gripper")
+    print("  static; raw@start x2: the scene put once in the action's start configuration, gripper")
+    print("  static at the pre-pose (same contacts as the action starts with).")
+    half_steps = sum(steps[n].sum() for n in ACTIONS) / 2
+    physics_s = sum(physics_share[n] * local[n] for n in ACTIONS)
+    print(f"raw stepping, per process: {1e6 * tot['raw'] / half_steps:.1f} us/step (as built), "
+          f"{1e6 * tot['start'] / half_steps:.1f} us/step (at the start configurations); "
+          f"in-process shard: {1e6 * tot['local'] / (2 * half_steps):.1f} us/step all included, "
+          f"{1e6 * physics_s / (2 * half_steps):.1f} us/step inside stepSimulation")
+    print(f"world reset (rebuild of the scene): {reset:.2f} ms")
+    print(f"RSS per shard (peak, Shard.node()): in-process {local_node['rss_mb']:.0f} MB; "
+          + "; ".join(f"actor pid {n['pid']} {n['rss_mb']:.0f} MB ({n['worlds']} world)" for n in nodes))
+    print(f"wall time {time.perf_counter() - t_start:.1f} s")
+    print(f"ratio_vs_raw={tot['raw'] / tot['ray']:.3f}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,90 @@
+"""`tmoc probe`: seeded physics trials of one action, to check a domain's physics.
+
+    tmoc probe --domain container --action pickup --true-size 0.045 --believed-size 0.034 \\
+        --trials 20 --seed 0 [--json]
+
+Each trial builds a world with true block size S, jitters block placement (a few mm) and
+friction (about 10 %) from the seed, takes the action's poses from Y with the believed
+size B (default S) and reads the outcome through Y^-1. `--load K` is the number of blocks
+in the container for `push` and the number of blocks stacked for `stack`.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import math
+
+from coordinator.cli import UsageError
+
+ACTIONS = ("pickup", "stack", "push")
+PROBE_DOMAINS = ("container",)      # the domains sim_workers.probe knows how to set up
+DEFAULT_LOAD = 4
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser(
+        "probe", help="run seeded physics trials of one action and print its success rate",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        epilog="Example: tmoc probe --domain container --action push --true-size 0.045 "
+               "--load 8 --trials 20 --seed 1 --json")
+    p.add_argument("--domain", default="container", metavar="NAME",
+                   help="domain to probe (default: container)")
+    p.add_argument("--action", required=True, metavar="ACTION",
+                   help="one of: " + ", ".join(ACTIONS))
+    p.add_argument("--true-size", required=True, type=float, metavar="S",
+                   help="true block side length in the world (m)")
+    p.add_argument("--believed-size", type=float, default=None, metavar="B",
+                   help="block size Y computes the poses from (m; default: the true size)")
+    p.add_argument("--load", type=int, default=DEFAULT_LOAD, metavar="K",
+                   help=f"blocks in the container (push) or blocks stacked (stack); default {DEFAULT_LOAD}")
+    p.add_argument("--trials", type=int, default=20, metavar="N", help="number of trials (default 20)")
+    p.add_argument("--seed", type=int, default=0, metavar="SEED", help="random seed (default 0)")
+    p.add_argument("--json", action="store_true", help="print one JSON object instead of a line")
+    p.set_defaults(func=run)
+
+
+def _check_size(flag: str, value: float) -> float:
+    from sim_workers.properties import MAX_SIZE_M, MIN_SIZE_M
+
+    if not math.isfinite(value):
+        raise UsageError(f"{flag}: {value!r} is not a finite number")
+    if not MIN_SIZE_M <= value <= MAX_SIZE_M:
+        raise UsageError(f"{flag}: {value!r} m is outside the property range "
+                         f"[{MIN_SIZE_M}, {MAX_SIZE_M}] m")
+    return value
+
+
+def run(args: argparse.Namespace) -> int:
+    from sim_workers import domains
+    from sim_workers.probe import probe
+
+    known = domains.names()
+    if args.domain not in known:
+        raise UsageError(f"--domain: unknown domain {args.domain!r} (known: {', '.join(known)})")
+    if args.domain not in PROBE_DOMAINS:
+        raise UsageError(f"--domain: probing is not available for {args.domain!r} "
+                         f"(available: {', '.join(PROBE_DOMAINS)})")
+    if args.action not in ACTIONS:
+        raise UsageError(f"--action: {args.action!r} is not one of {', '.join(ACTIONS)}")
+    true_size = _check_size("--true-size", args.true_size)
+    believed = true_size if args.believed_size is None else _check_size("--believed-size", args.believed_size)
+    n_blocks = domains.load(args.domain).spec.n_blocks
+    if not 1 <= args.load <= n_blocks:
+        raise UsageError(f"--load: {args.load} is outside 1..{n_blocks}")
+    if args.trials < 1:
+        raise UsageError(f"--trials: {args.trials} must be at least 1")
+    if args.seed < 0:
+        raise UsageError(f"--seed: {args.seed} must not be negative")
+
+    result = probe(args.action, true_size, believed, load_k=args.load, trials=args.trials,
+                   seed=args.seed, n_blocks=n_blocks)
+    if args.json:
+        out = {"domain": args.domain, **result.to_dict(), "seed": args.seed, "n_blocks": n_blocks}
+        print(json.dumps(out, sort_keys=True))
+        return 0
+    load = f", load {result.load}" if args.action in ("stack", "push") else ""
+    print(f"{args.domain} {args.action}: {result.successes}/{result.trials} succeeded, "
+          f"success rate {result.success_rate:.3f} (true size {true_size:g} m, "
+          f"believed {believed:g} m{load}, seed {args.seed})")
+    return 0

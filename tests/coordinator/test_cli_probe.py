@@ -1,0 +1,85 @@
+"""`tmoc probe` through coordinator.cli.main, in-process: exit codes, output, errors."""
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from coordinator.cli import main
+
+BASE = ["probe", "--domain", "container", "--true-size", "0.045", "--seed", "3"]
+
+
+def test_pickup_json_has_the_rate_and_the_inputs(capsys):
+    code = main(BASE + ["--action", "pickup", "--trials", "2", "--json"])
+    out, err = capsys.readouterr()
+    assert code == 0, err
+    data = json.loads(out)
+    assert data["trials"] == 2 and data["success_rate"] == 1.0 and data["successes"] == 2
+    assert data["action"] == "pickup" and data["domain"] == "container" and data["seed"] == 3
+    assert data["true_size"] == 0.045 and data["believed_size"] == 0.045
+
+
+def test_wrong_believed_size_fails_and_human_line(capsys):
+    code = main(BASE + ["--action", "pickup", "--believed-size", "0.0315", "--trials", "2"])
+    out, _ = capsys.readouterr()
+    assert code == 0
+    assert out.count("\n") == 1
+    assert "0/2 succeeded" in out and "success rate 0.000" in out and "believed 0.0315 m" in out
+
+
+def test_push_with_load_same_seed_same_answer(capsys):
+    args = BASE + ["--action", "push", "--load", "2", "--trials", "2", "--json"]
+    assert main(args) == 0
+    first = json.loads(capsys.readouterr().out)
+    assert main(args) == 0
+    assert json.loads(capsys.readouterr().out) == first
+    assert first["load"] == 2 and 0.0 <= first["success_rate"] <= 1.0
+
+
+@pytest.mark.parametrize("extra, flag", [
+    (["--domain", "kitchen", "--action", "pickup"], "--domain"),
+    (["--action", "jump"], "--action"),
+    (["--action", "pickup", "--true-size", "-0.045"], "--true-size"),
+    (["--action", "pickup", "--true-size", "5"], "--true-size"),
+    (["--action", "pickup", "--true-size", "nan"], "--true-size"),
+    (["--action", "pickup", "--believed-size", "0.001"], "--believed-size"),
+    (["--action", "pickup", "--believed-size", "inf"], "--believed-size"),
+    (["--action", "pickup", "--trials", "0"], "--trials"),
+    (["--action", "pickup", "--trials", "-3"], "--trials"),
+    (["--action", "push", "--load", "0"], "--load"),
+    (["--action", "push", "--load", "9"], "--load"),
+    (["--action", "stack", "--seed", "-1"], "--seed"),
+])
+def test_bad_input_names_the_flag_and_exits_2(capsys, extra, flag):
+    # Later flags override BASE's (argparse keeps the last value).
+    code = main(BASE + ["--trials", "1"] + extra)
+    out, err = capsys.readouterr()
+    assert code == 2
+    assert out == ""
+    assert err.startswith("tmoc probe: error: ") and flag in err
+    assert "Traceback" not in err and err.count("\n") == 1
+
+
+@pytest.mark.parametrize("args", [
+    ["probe", "--true-size", "0.045"],                                   # --action missing
+    ["probe", "--action", "pickup"],                                     # --true-size missing
+    ["probe", "--action", "pickup", "--true-size", "big"],
+    ["probe", "--action", "pickup", "--true-size", "0.045", "--trials", "many"],
+    ["probe", "--action", "pickup", "--true-size", "0.045", "--load", "2.5"],
+    ["probe", "--action", "pickup", "--true-size", "0.045", "--color", "red"],
+])
+def test_argparse_errors_exit_2(capsys, args):
+    with pytest.raises(SystemExit) as exc:
+        main(args)
+    assert exc.value.code == 2
+    assert "usage: tmoc" in capsys.readouterr().err
+
+
+def test_help_lists_the_flags(capsys):
+    with pytest.raises(SystemExit) as exc:
+        main(["probe", "--help"])
+    assert exc.value.code == 0
+    out = capsys.readouterr().out
+    for flag in ("--domain", "--action", "--true-size", "--believed-size", "--load", "--trials", "--seed", "--json"):
+        assert flag in out

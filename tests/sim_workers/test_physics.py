@@ -1,0 +1,164 @@
+"""The container domain's physics claims (issue 2, "Must show"), from seeded trials.
+
+Every rate here comes from ``sim_workers.probe.probe``: each trial jitters block placement
+(a few mm) and every friction coefficient (about 10 %) from its own child generator, takes
+the action's poses from Y with the *believed* size and lets pybullet decide. Nothing is
+scripted: a failure is the fingers closing on air or landing on the block, a push loses
+blocks because a tall pile topples.
+
+Thresholds (issue 2) and what these seeds measure (successes / trials):
+  pickup, believed == true 0.045        >= 90 %                    measured 20/20
+  pickup, believed 25 % and 30 % off    fails in >= half           measured 0/16 for each of
+                                        (smaller and larger)       0.70, 0.75, 1.25, 1.30 x true
+  stack of the first 4 blocks           >= 90 %                    measured 12/12
+  push with 2 loaded                    >= 90 %                    measured 20/20
+  push with 8 loaded                    >= 25 points below load 2  measured 3/20
+  (push with 4 and 6 loaded, same seed: 20/20 and 16/20; not asserted)
+"""
+from __future__ import annotations
+
+import numpy as np
+import pybullet as pb
+import pytest
+
+from sim_workers.configuration import Configuration
+from sim_workers.domains import load
+from sim_workers.grounded_world import GroundedWorld
+from sim_workers.probe import probe
+
+TRUE = 0.045
+
+
+# -- the four claims, as rates --------------------------------------------------------------
+def test_pickup_with_true_size_succeeds():
+    r = probe("pickup", TRUE, trials=20, seed=11)
+    assert r.trials == 20
+    assert r.success_rate >= 0.9, r.to_dict()
+
+
+@pytest.mark.parametrize("factor", [0.70, 0.75, 1.25, 1.30],
+                         ids=["30pc_smaller", "25pc_smaller", "25pc_larger", "30pc_larger"])
+def test_pickup_with_wrong_believed_size_fails_in_at_least_half(factor):
+    believed = factor * TRUE
+    r = probe("pickup", TRUE, believed, trials=16, seed=12)
+    assert r.believed_size == believed and r.true_size == TRUE
+    assert 1 - r.success_rate >= 0.5, r.to_dict()
+
+
+def test_stacking_first_four_blocks_with_true_sizes():
+    r = probe("stack", TRUE, load_k=4, trials=12, seed=13)
+    assert r.success_rate >= 0.9, r.to_dict()
+
+
+def test_push_loses_blocks_more_often_with_a_heavier_load():
+    light = probe("push", TRUE, load_k=2, trials=20, seed=14)
+    heavy = probe("push", TRUE, load_k=8, trials=20, seed=14)
+    assert light.success_rate >= 0.9, light.to_dict()
+    assert light.success_rate - heavy.success_rate >= 0.25, (light.to_dict(), heavy.to_dict())
+
+
+def test_probe_is_reproducible_from_its_seed():
+    a = probe("pickup", TRUE, 0.040, trials=3, seed=5)
+    b = probe("pickup", TRUE, 0.040, trials=3, seed=5)
+    assert a == b
+
+
+# -- how a grasp works and how it fails -----------------------------------------------------
+def _world(**options):
+    domain = load("container", **options)
+    truth = domain.true_properties()
+    world = GroundedWorld(domain)
+    config = world.reset(domain.initial_configuration(truth), truth)
+    return domain, world, config
+
+
+def _pickup_trajectory(domain, config, believed: float, block: str = "b3"):
+    action = f"pickup(r,{block},init)"
+    key = domain.action_pose({"block_sizes": np.full(domain.spec.n_blocks, believed)}, config, action)
+    return action, key, domain.action_trajectory(config, action, key)
+
+
+def _constraint_bodies(world) -> list[tuple[int, int]]:
+    c = world.client
+    out = []
+    for k in range(pb.getNumConstraints(physicsClientId=c)):
+        info = pb.getConstraintInfo(pb.getConstraintUniqueId(k, physicsClientId=c), physicsClientId=c)
+        out.append((info[0], info[2]))            # parent body, child body (-1: the world)
+    return out
+
+
+def test_a_held_block_is_held_by_friction_not_by_a_constraint():
+    domain, world, config = _world()
+    with world:
+        before = _constraint_bodies(world)
+        action, _, traj = _pickup_trajectory(domain, config, TRUE)
+        out = world.execute(traj, action, start_time=float(traj[3, 0]))
+        assert "is_holding(r,b3)" in out.state and "hand_empty(r)" not in out.state
+        block = out.configuration.objects[3]
+        assert block[2] > 0.15                              # really up in the air
+        # Exactly the gripper's two constraints (base carrier, finger gear), before and after;
+        # none of them touches a block.
+        after = _constraint_bodies(world)
+        assert len(after) == 2 and after == before
+        g = world.handles.gripper
+        assert all(parent == g and child in (g, -1) for parent, child in after)
+        assert not set(world.handles.blocks) & {b for pair in after for b in pair}
+        # The fingers touch the block on both sides: contact, and the measured opening is
+        # the block's width.
+        contacts = pb.getContactPoints(g, world.handles.blocks[2], physicsClientId=world.client)
+        assert {cp[3] for cp in contacts} == {0, 1}         # both finger links
+        assert out.configuration.robot[4] == pytest.approx(TRUE, abs=0.004)
+        # Open the hand in the air: nothing but friction held it, so it drops to the table.
+        r = out.configuration.robot
+        release = np.array([[0.0, *r[:4], 0.0], [0.5, *r[:4], domain.spec.max_opening - 0.005]])
+        dropped = world.execute(release, action)
+        assert "hand_empty(r)" in dropped.state and "is_holding(r,b3)" not in dropped.state
+        assert dropped.configuration.objects[3, 2] == pytest.approx(TRUE / 2, abs=0.003)
+
+
+def test_without_finger_friction_the_grasp_slips():
+    # Same geometry, same commands; only finger friction almost gone: the block stays down.
+    domain, world, config = _world(mu_finger=0.05)
+    with world:
+        action, _, traj = _pickup_trajectory(domain, config, TRUE)
+        out = world.execute(traj, action, start_time=float(traj[3, 0]))
+        assert "hand_empty(r)" in out.state
+        assert out.configuration.objects[3, 2] < 0.05
+
+
+@pytest.mark.parametrize("believed", [0.0315, 0.0585])
+def test_a_wrong_believed_size_fails_physically(believed):
+    domain, world, config = _world()
+    with world:
+        action, key, traj = _pickup_trajectory(domain, config, believed)
+        block0 = config.objects[3].copy()
+        out = world.execute(traj, action, start_time=float(traj[3, 0]))
+        # Y's failure is physical: the block was not lifted and the hand holds nothing.
+        assert "hand_empty(r)" in out.state and "is_holding(r,b3)" not in out.state
+        assert out.configuration.objects[3, 2] < TRUE           # still on the table
+        assert out.configuration.robot[2] > 0.15                # while the gripper went up
+        assert out.configuration.robot[4] < 0.002               # fingers closed on nothing
+        if believed > TRUE:
+            # Too large: the fingertips stop above the block's top and close on air; the
+            # block is not even touched.
+            assert key[2] > TRUE
+            np.testing.assert_allclose(out.configuration.objects[3, :3], block0[:3], atol=5e-4)
+
+
+def _closing_phase(believed: float) -> Configuration:
+    """The configuration just after the fingers closed (before the lift)."""
+    domain, world, config = _world()
+    with world:
+        action, _, traj = _pickup_trajectory(domain, config, believed)
+        return world.execute(traj[:6], action, start_time=float(traj[3, 0]),
+                             max_settle_s=0.3).configuration
+
+
+@pytest.mark.xfail(strict=True, reason=(
+    "known defect: at 20 solver iterations the gripper's 40 N base constraint pushes a block "
+    "it lands on ~23 mm into the table plane instead of stopping on its top (50 iterations "
+    "stop it at the top); see the issue 2 report"))
+def test_fingers_that_land_on_a_block_stop_on_its_top():
+    after = _closing_phase(0.0315)            # opening 0.036 < 0.045: fingers land on the top
+    assert after.objects[3, 2] > TRUE / 2 - 0.003       # the block is not pushed into the table
+    assert after.robot[2] > TRUE - 0.005                # the fingertips rest on its top
