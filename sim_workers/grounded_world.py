@@ -22,7 +22,7 @@ from .domains import Domain
 
 REST_LINEAR = 0.004     # m/s: below this everything counts as at rest
 REST_ANGULAR = 0.04     # rad/s
-REST_CHECK_EVERY = 6    # steps
+REST_CHECK_EVERY = 12   # steps
 
 
 @dataclass(frozen=True)
@@ -43,6 +43,7 @@ class GroundedWorld:
         self.client = pb.connect(pb.DIRECT)
         self.handles = None
         self.props: dict | None = None
+        self._sent_pose = self._sent_q = None
         self.settle_s = float(getattr(domain.spec, "settle_s", 1.0))
 
     # -- lifecycle ---------------------------------------------------------------------
@@ -77,19 +78,27 @@ class GroundedWorld:
 
     def _set_gripper(self, robot: np.ndarray, reset: bool = False) -> None:
         h, c = self.handles, self.client
-        pos = [robot[0], robot[1], robot[2] + h.palm_offset]
-        orn = quat_from_yaw(robot[3])
-        q = robot[4] / 2.0 + h.finger_inner
+        pose = tuple(float(v) for v in robot[:4])
+        q = float(robot[4]) / 2.0 + h.finger_inner
         if reset:
-            pb.resetBasePositionAndOrientation(h.gripper, pos, orn, physicsClientId=c)
+            self._sent_pose = self._sent_q = None
+            pos = [pose[0], pose[1], pose[2] + h.palm_offset]
+            pb.resetBasePositionAndOrientation(h.gripper, pos, quat_from_yaw(pose[3]), physicsClientId=c)
             pb.resetBaseVelocity(h.gripper, [0, 0, 0], [0, 0, 0], physicsClientId=c)
             for j in h.fingers:
                 pb.resetJointState(h.gripper, j, q, 0.0, physicsClientId=c)
-        pb.changeConstraint(h.base_constraint, jointChildPivot=pos, jointChildFrameOrientation=orn,
-                            maxForce=self.domain.spec.base_max_force, physicsClientId=c)
-        pb.setJointMotorControlArray(h.gripper, list(h.fingers), pb.POSITION_CONTROL,
-                                     targetPositions=[q, q], forces=[h.grip_force] * 2,
-                                     physicsClientId=c)
+        # Commands are sent only when they change: they hold until replaced, and two
+        # pybullet calls per step are a fifth of a step's cost.
+        if pose != self._sent_pose:
+            pb.changeConstraint(h.base_constraint, jointChildPivot=[pose[0], pose[1], pose[2] + h.palm_offset],
+                                jointChildFrameOrientation=quat_from_yaw(pose[3]),
+                                maxForce=self.domain.spec.base_max_force, physicsClientId=c)
+            self._sent_pose = pose
+        if q != self._sent_q:
+            pb.setJointMotorControlArray(h.gripper, list(h.fingers), pb.POSITION_CONTROL,
+                                         targetPositions=[q, q], forces=[h.grip_force] * 2,
+                                         physicsClientId=c)
+            self._sent_q = q
 
     def observe(self) -> Configuration:
         """The current configuration (gripper tool point, opening, object poses)."""

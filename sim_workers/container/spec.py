@@ -42,7 +42,9 @@ class ContainerSpec:
     mu_finger: float = 1.5          # finger-block 1.20
     # Physics: chosen by measurement (benchmarks/bench_worlds.py and DESIGN sec. 7).
     time_step: float = 1.0 / 120.0
-    solver_iterations: int = 20
+    # 50 iterations: at 20 a gripper landing on a block drives it into the table (the
+    # fingers should stop on its top); at 1/60 s blocks sink into the table at any count.
+    solver_iterations: int = 50
     # Y's grasp rules, in terms of the believed size s: pre-grasp opening = open_ratio * s,
     # fingertips this far below the believed top.
     open_ratio: float = 1.15

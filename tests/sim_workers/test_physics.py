@@ -154,10 +154,6 @@ def _closing_phase(believed: float) -> Configuration:
                              max_settle_s=0.3).configuration
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "known defect: at 20 solver iterations the gripper's 40 N base constraint pushes a block "
-    "it lands on ~23 mm into the table plane instead of stopping on its top (50 iterations "
-    "stop it at the top); see the issue 2 report"))
 def test_fingers_that_land_on_a_block_stop_on_its_top():
     after = _closing_phase(0.0315)            # opening 0.036 < 0.045: fingers land on the top
     assert after.objects[3, 2] > TRUE / 2 - 0.003       # the block is not pushed into the table
