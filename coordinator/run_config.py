@@ -25,7 +25,7 @@ class RunConfig(BaseModel):
     model_config = ConfigDict(extra="forbid")
     domain: Literal["container"] = "container"
     agent: Literal["tmoc", "tmp_rl", "gp", "toep"] = "tmoc"
-    particles: int = Field(48, ge=1, le=5000)
+    particles: int = Field(32, ge=1, le=5000)
     episodes: int = Field(8, ge=1, le=100000)
     seed: int = Field(0, ge=0, le=2**63 - 1)
     n_blocks: int = Field(8, ge=1, le=16)
@@ -35,6 +35,11 @@ class RunConfig(BaseModel):
     max_steps: int = Field(60, ge=1, le=1000)
     error_rate: float = Field(0.05, gt=0, lt=0.5)
     use_measurements: bool = True
+    match: Literal["success", "state"] = "success"
+    # Resampling jitter: std = max(jitter * posterior std, jitter_floor * prior width).
+    # A floor of 2 % (0.6 mm) lets a small particle set still drift onto the truth.
+    jitter: float = Field(0.1, ge=0, le=1)
+    jitter_floor: float = Field(0.02, ge=0, le=0.5)
     sim_weight: float = Field(1.0, ge=0, le=100)
     costs: Costs = Costs()
     shards: int | None = Field(None, ge=0, le=4096)

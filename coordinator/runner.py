@@ -21,39 +21,51 @@ def reality_for(config: RunConfig, session: Session) -> SimulatedReality:
 
 
 def run(config: RunConfig, *, ray_address: str | None = None,
-        on_episode: Callable[[dict, Session], None] | None = None,
-        kill_shard_at: int | None = None) -> dict:
-    """Run every episode of `config`; returns the result record (see `tmoc run`).
+        on_episode: Callable[[dict, Session, dict], None] | None = None,
+        resume: dict | None = None, should_stop: Callable[[], bool] | None = None,
+        pool: ShardPool | None = None, kill_shard_at: int | None = None) -> dict:
+    """Run the episodes of `config`; returns the result record (see `tmoc run`).
 
+    on_episode(record, session, checkpoint) is called after every episode with a
+    checkpoint from which ``run(config, resume=checkpoint)`` continues exactly where this
+    run is (same results as an uninterrupted run). `should_stop` is polled between
+    episodes. `pool` lets a long-lived service share one shard pool between tasks.
     `kill_shard_at` (tests only): kill shard 0 right before that episode, to check that Ray
     restarts it and the run ends with identical results.
     """
     t0 = time.perf_counter()
-    pool = None
-    session = Session(config)
+    own_pool = pool is None
+    session = Session.from_checkpoint(resume["session"]) if resume else Session(config)
     if session.agent.learn_belief:
-        init_ray(ray_address)
-        pool = ShardPool(config.domain, {"n_blocks": config.n_blocks}, config.shards)
+        if pool is None:
+            init_ray(ray_address)
+            pool = ShardPool(config.domain, {"n_blocks": config.n_blocks}, config.shards)
         session.pool = pool
+    else:
+        pool, own_pool = None, False
     reality = reality_for(config, session)
     # Reality's draws come from their own stream: the agent's decisions never shift them.
     reality_rng = np.random.default_rng(np.random.SeedSequence(config.seed).spawn(2)[1])
+    if resume:
+        reality_rng.bit_generator.state = resume["reality_rng"]
+    nodes: list[dict] = []
     try:
         nodes = pool.nodes() if pool is not None else []
-        for e in range(config.episodes):
+        for e in range(session.episode, config.episodes):
+            if should_stop is not None and should_stop():
+                break
             if kill_shard_at is not None and e == kill_shard_at and pool is not None and pool.actors:
                 import ray
                 ray.kill(pool.actors[0], no_restart=False)
             record = session.run_episode(reality, reality_rng)
             if on_episode is not None:
-                on_episode(record, session)
+                on_episode(record, session, {"session": session.to_checkpoint(),
+                                             "reality_rng": reality_rng.bit_generator.state})
     finally:
         reality.close()
-        if pool is not None:
-            ray_s = pool.timings["ray_s"]
+        ray_s = pool.timings["ray_s"] if pool is not None else 0.0
+        if own_pool and pool is not None:
             pool.close()
-        else:
-            ray_s = 0.0
     return result_record(config, session, nodes, time.perf_counter() - t0, ray_s)
 
 
@@ -77,6 +89,7 @@ def result_record(config: RunConfig, session: Session, nodes: list[dict], wall_s
             "shards": len(nodes),
             "nodes": sorted({n["node_id"] for n in nodes}),
             "particle_actions": session.particle_actions,
+            "particle_steps": session.particle_steps,
             "wall_s": wall_s,
             "ray_wait_s": ray_s,
             "physics_s": float(sum(e["physics_s"] for e in episodes)),

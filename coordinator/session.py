@@ -80,6 +80,7 @@ class Session:
         self.episode = 0
         self.episodes: list[dict] = []
         self.particle_actions = 0
+        self.particle_steps = 0
         # Episode state.
         self.observation: Observation | None = None
         self.plan: list[str] = []
@@ -217,16 +218,33 @@ class Session:
             res = self.pool.simulate(start, sizes, step.action, trajs, np.array(t_pre))
         self.stats.physics_s += time.perf_counter() - t0
         self.particle_actions += len(sizes)
-        loglik = symbolic_log_likelihood(observation.state, res["states"], self.config.error_rate)
+        self.particle_steps += int(res["steps"].sum())
+        loglik = self._symbolic_loglik(step, observation.state, res["states"])
         if self.config.use_measurements:
-            loglik = loglik + gaussian_log_likelihood(observation.measurements, res["measurements"],
-                                                      self.domain.measurement_sigma())
+            idx, sigma = self.domain.measurement_model()
+            loglik = loglik + gaussian_log_likelihood(observation.measurements[idx],
+                                                      res["measurements"][:, idx], sigma)
         self.belief.update(loglik)
         if self.agent.sim_experience:
             self.experience.add_simulated(before.state, step.action, res["states"], step.expected,
                                           self.belief.weights)
-        resampled = self.belief.maybe_resample(self.rng)
+        resampled = self.belief.maybe_resample(self.rng, jitter=self.config.jitter,
+                                               jitter_floor=self.config.jitter_floor)
         return {"ess": float(self.belief.ess()), "resampled": bool(resampled)}
+
+    def _symbolic_loglik(self, step: PendingStep, observed: frozenset[str], predicted: list) -> np.ndarray:
+        """p(s' | s_i'), a match model with a small error rate.
+
+        `match="success"` (default) compares whether the action had its planned effect in
+        the real world and in particle i; `match="state"` compares the whole symbolic state
+        (the paper's literal reading), which also scores chaotic detail such as which of
+        eight blocks fell off a pile, and made the belief collapse on noise in our runs.
+        """
+        if self.config.match == "state":
+            return symbolic_log_likelihood(observed, predicted, self.config.error_rate)
+        ok = frozenset({"success"})
+        flag = lambda s: ok if s == step.expected else frozenset()
+        return symbolic_log_likelihood(flag(observed), [flag(s) for s in predicted], self.config.error_rate)
 
     def _account(self, state, step: PendingStep, next_state, success: bool) -> None:
         c = self.config.costs
@@ -267,6 +285,40 @@ class Session:
         self.episodes.append(record)
         self.episode += 1
         return record
+
+    # -- checkpoints -----------------------------------------------------------------------
+    def to_checkpoint(self) -> dict:
+        """The whole learning state at an episode boundary, JSON-able: belief, experience
+        pool (T is derived from it), generator state, episode records and counters."""
+        if self.pending is not None or (self.observation is not None and not self.episode_done()):
+            raise RuntimeError("checkpoint: only at an episode boundary")
+        return {
+            "version": 1,
+            "config": self.config.model_dump(),
+            "belief": self.belief.to_dict() if self.belief is not None else None,
+            "experience": self.experience.to_dict(),
+            "rng": self.rng.bit_generator.state,
+            "episode": self.episode,
+            "episodes": self.episodes,
+            "particle_actions": self.particle_actions,
+            "particle_steps": self.particle_steps,
+        }
+
+    @classmethod
+    def from_checkpoint(cls, data: dict, pool=None) -> "Session":
+        session = cls(RunConfig(**data["config"]), pool)
+        if data["belief"] is not None:
+            session.belief = Belief.from_dict(data["belief"])
+        session.experience = ExperiencePool.from_dict(data["experience"])
+        session.transition = TransitionModel.from_experience(
+            session.experience, session.n_blocks,
+            sim_weight=session.config.sim_weight if session.agent.sim_experience else 0.0)
+        session.rng.bit_generator.state = data["rng"]
+        session.episode = data["episode"]
+        session.episodes = list(data["episodes"])
+        session.particle_actions = data["particle_actions"]
+        session.particle_steps = data["particle_steps"]
+        return session
 
     def run_episode(self, reality, reality_rng: np.random.Generator) -> dict:
         """Drive one episode against `reality` (SimulatedReality or anything alike)."""

@@ -50,7 +50,7 @@ def main(args) -> int:
 
     bar = tqdm(total=config.episodes, desc=f"{config.agent}", unit="ep", disable=args.no_progress)
 
-    def on_episode(record, session):
+    def on_episode(record, session, checkpoint):
         post = record["posterior"]
         bar.set_postfix(utility=f"{record['utility']:.0f}", size=f"{post['size_mean'] * 1000:.1f}mm",
                         spread=f"{post['size_std'] * 1000:.1f}mm", loads=record["loads"])

@@ -58,7 +58,9 @@ class ContainerSpec:
     push_speed: float = 0.50       # a brisk stroke: tall piles topple, low loads ride (probe-tuned)
     push_accel: float = 8.0
     move_speed: float = 0.30
-    settle_s: float = 1.0
+    approach_speed: float = 0.20    # m/s, the last 8 cm down to a grasp or release
+    lift_speed: float = 0.30        # m/s, up and away once the fingers have acted
+    settle_s: float = 0.5           # at most this long after the trajectory (stops at rest)
     extra: dict = field(default_factory=dict, compare=False)
 
     @property

@@ -62,25 +62,25 @@ def _action_trajectory(spec, config, action, key, transit):
     if name == "pickup":
         closed = key.copy(); closed[4] = CLOSED
         lifted = closed.copy(); lifted[2] = spec.carry_height
-        tail = tr.time_parameterize(np.array([pre, key]), 0.10)
+        tail = tr.time_parameterize(np.array([pre, key]), spec.approach_speed)
         grip = tr.time_parameterize(np.array([key, closed]), 1.0, finger_speed=0.15)
         grip = np.vstack([grip, [grip[-1, 0] + 0.3, *closed]])  # dwell: let the grip settle
-        lift = tr.time_parameterize(np.array([closed, lifted]), 0.15)
+        lift = tr.time_parameterize(np.array([closed, lifted]), spec.lift_speed)
         return tr.concatenate(move, tail, grip, lift), t_pre
     if name == "stack":
         down = key.copy(); down[4] = CLOSED
         up = key.copy(); up[2] = max(spec.carry_height, key[2] + 0.10)
-        tail = tr.time_parameterize(np.array([pre, down]), 0.10)
+        tail = tr.time_parameterize(np.array([pre, down]), spec.approach_speed)
         release = tr.time_parameterize(np.array([down, key]), 1.0, finger_speed=0.15)
         release = np.vstack([release, [release[-1, 0] + 0.2, *key]])
-        leave = tr.time_parameterize(np.array([key, up]), 0.15)
+        leave = tr.time_parameterize(np.array([key, up]), spec.lift_speed)
         return tr.concatenate(move, tail, release, leave), t_pre
     # push: descend behind the container, stroke to the target, back off and rise.
     end = key.copy(); end[0] = push_end_x(spec, config, action, key)
     d = np.sign(end[0] - key[0]) or 1.0
     back = end.copy(); back[0] -= d * 0.03
     up = back.copy(); up[2] = spec.carry_height
-    descend = tr.time_parameterize(np.array([pre, key]), 0.15)
+    descend = tr.time_parameterize(np.array([pre, key]), 2 * spec.approach_speed)
     stroke = tr.trapezoid_stroke(key, end, spec.push_speed, spec.push_accel, 0.0)
-    retreat = tr.time_parameterize(np.array([end, back, up]), 0.2)
+    retreat = tr.time_parameterize(np.array([end, back, up]), spec.lift_speed)
     return tr.concatenate(move, descend, stroke, retreat), t_pre

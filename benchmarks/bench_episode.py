@@ -1,0 +1,73 @@
+"""Wall time of one TMOC episode on local Ray, split into physics, planning and Ray overhead.
+
+    python benchmarks/bench_episode.py [--particles 100] [--quick]
+
+Particle-actions per second over the episode are compared with the raw limit: pybullet
+stepping the same scene for the same number of steps in 2 plain processes (measured here,
+in the same run, by benchmarks/bench_worlds.py's raw stepping function).
+"""
+from __future__ import annotations
+
+import argparse
+import multiprocessing as mp
+import os
+import sys
+import time
+
+import numpy as np
+
+sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+
+from coordinator.run_config import RunConfig  # noqa: E402
+from coordinator.runner import run  # noqa: E402
+
+
+def raw_steps_per_second(steps: int) -> float:
+    """pybullet stepping of the container scene (blocks resting, gripper held), one core."""
+    import pybullet as pb
+
+    from sim_workers.domains import load
+
+    d = load("container")
+    c = pb.connect(pb.DIRECT)
+    d.build(c, d.true_properties())
+    t0 = time.perf_counter()
+    for _ in range(steps):
+        pb.stepSimulation(physicsClientId=c)
+    dt = time.perf_counter() - t0
+    pb.disconnect(c)
+    return steps / dt
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--particles", type=int, default=100)
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--quick", action="store_true", help="24 particles")
+    args = ap.parse_args()
+    n = 24 if args.quick else args.particles
+    cfg = RunConfig(agent="tmoc", particles=n, episodes=1, seed=args.seed)
+    t0 = time.perf_counter()
+    result = run(cfg)
+    wall = time.perf_counter() - t0
+    ep = result["episodes"][0]
+    rt = result["runtime"]
+    pa = rt["particle_actions"]
+    physics = ep["physics_s"]
+    planning = ep["planning_s"]
+    real = ep["wall_s"] - physics - planning
+    with mp.Pool(2) as pool:
+        raw = sum(pool.map(raw_steps_per_second, [4000, 4000]))
+    steps_per_pa = rt["particle_steps"] / pa   # measured in this run
+    raw_pa = raw / steps_per_pa
+    print(f"particles={n} actions={ep['actions']} loads={ep['loads']} utility={ep['utility']}")
+    print(f"episode_wall_s={ep['wall_s']:.2f} (run incl. Ray start {wall:.2f})")
+    print(f"  particle physics (Ray wait) {physics:.2f} s, planning (clingo + OMPL) {planning:.2f} s, "
+          f"real world + Y + bookkeeping {real:.2f} s")
+    print(f"particle_actions={pa} -> {pa / physics:.1f}/s during physics, {pa / ep['wall_s']:.1f}/s over the episode")
+    print(f"raw stepping, 2 processes: {raw:.0f} steps/s = {raw_pa:.1f} particle-actions/s at {steps_per_pa:.0f} steps each")
+    print(f"ratio_vs_raw={pa / physics / raw_pa:.3f}")
+
+
+if __name__ == "__main__":
+    main()
