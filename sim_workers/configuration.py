@@ -59,6 +59,27 @@ def yaw_of(quat: np.ndarray) -> float:
     return float(np.arctan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z)))
 
 
+def quat_to_matrix(quat: np.ndarray) -> np.ndarray:
+    """Rotation matrix of a quaternion (x, y, z, w); columns are the body axes in the world."""
+    x, y, z, w = np.asarray(quat, dtype=np.float64) / np.linalg.norm(quat)
+    return np.array([
+        [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+        [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+        [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+    ])
+
+
+def face_yaw(quat: np.ndarray) -> float:
+    """Yaw of a box resting on any face: the heading of its most horizontal body axis.
+
+    A block that fell on its side has its x axis vertical; the x axis' heading is then
+    meaningless, but the axes lying flat still say how the faces are turned.
+    """
+    R = quat_to_matrix(quat)
+    j = int(np.argmin(np.abs(R[2, :])))
+    return float(np.arctan2(R[1, j], R[0, j]))
+
+
 def quat_from_yaw(yaw: float) -> np.ndarray:
     return np.array([0.0, 0.0, np.sin(yaw / 2.0), np.cos(yaw / 2.0)])
 

@@ -29,7 +29,9 @@ class ContainerSpec:
     floor_thickness: float = 0.006
     container_mass: float = 0.30
     # Gripper: palm, two prismatic fingers; pose = fingertip centre (tool point).
-    palm_half: tuple[float, float, float] = (0.020, 0.055, 0.010)
+    # The palm is narrower (12 mm) than any block: a block toppling off a pushed pile slides
+    # off the wrist instead of riding on it for the rest of the episode.
+    palm_half: tuple[float, float, float] = (0.006, 0.055, 0.010)
     finger_half: tuple[float, float, float] = (0.012, 0.005, 0.030)
     max_opening: float = 0.09
     grip_force: float = 5.0         # N per finger; more overpowers 20 solver iterations (measured)

@@ -13,7 +13,7 @@ import re
 
 import numpy as np
 
-from ..configuration import Configuration, quat_from_yaw, rotate_z, yaw_of
+from ..configuration import Configuration, face_yaw, quat_from_yaw, rotate_z, yaw_of
 from .spec import ContainerSpec
 
 _ACTION = re.compile(r"^(pickup|stack|push)\(([^()]*)\)$")
@@ -56,7 +56,10 @@ def _in_container(spec: ContainerSpec, config: Configuration, p: np.ndarray) -> 
     c = config.objects[0]
     local = rotate_z(p[:2] - c[:2], -yaw_of(c[3:]))
     ix, iy = spec.inner_half
-    return abs(local[0]) < ix + 0.004 and abs(local[1]) < iy + 0.004 and p[2] > c[2]
+    # Nothing above the tallest possible pile (n blocks of the largest prior size in two
+    # columns) is in the container, e.g. a block carried over it.
+    top = c[2] + spec.floor_top + spec.prior_high * ((spec.n_blocks + 1) // 2) + 0.01
+    return abs(local[0]) < ix + 0.004 and abs(local[1]) < iy + 0.004 and c[2] < p[2] < top
 
 
 def block_labels(spec: ContainerSpec, config: Configuration) -> list[str]:
@@ -99,7 +102,7 @@ def symbolic_state(spec: ContainerSpec, config: Configuration) -> frozenset[str]
 
 def _grasp_yaw(quat: np.ndarray) -> float:
     """The block's yaw folded into [-pi/4, pi/4): a cube looks the same every quarter turn."""
-    yaw = yaw_of(quat)
+    yaw = face_yaw(quat)
     return float((yaw + np.pi / 4) % (np.pi / 2) - np.pi / 4)
 
 
