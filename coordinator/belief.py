@@ -337,3 +337,18 @@ def gaussian_log_likelihood(
         raise ValueError("predicted: NaN on a measured component")
     z = (p - o) / s
     return -0.5 * np.sum(z * z, axis=1) - float(np.sum(np.log(s))) - 0.5 * _LOG_2PI * o.shape[0]
+
+
+def mode_mask(particles: np.ndarray, weights: np.ndarray, bandwidth: float) -> np.ndarray:
+    """Particles in the heaviest mode: within `bandwidth` of the particle of highest
+    weighted kernel density (Gaussian kernel of that bandwidth, Euclidean in L).
+
+    The real pose is averaged over these only: the weighted mean of a bimodal belief's
+    poses (say a grasp for a small block and one for a large block) is neither grasp.
+    For a unimodal belief narrower than the bandwidth it keeps every particle.
+    """
+    p = np.asarray(particles, dtype=np.float64).reshape(len(particles), -1)
+    d2 = ((p[:, None, :] - p[None, :, :]) ** 2).sum(-1)
+    density = (np.exp(-0.5 * d2 / bandwidth ** 2) * np.asarray(weights)[None, :]).sum(1)
+    best = int(np.argmax(density))
+    return d2[best] <= (2.0 * bandwidth) ** 2

@@ -50,4 +50,8 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 if __name__ == "__main__":  # pragma: no cover
-    sys.exit(main())
+    # `python -m coordinator.cli`: run the imported module's main, so that the UsageError
+    # the commands raise (coordinator.cli.UsageError) is the one caught there.
+    from coordinator.cli import main as _main
+
+    sys.exit(_main())

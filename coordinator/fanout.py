@@ -29,10 +29,14 @@ def init_ray(address: str | None = None, num_cpus: int = 2) -> dict:
 
 
 class ShardPool:
-    """`n_shards` shard actors (default: one per CPU of the cluster), or in-process if 0."""
+    """`n_shards` shard actors (default: one per CPU of the cluster), or in-process if 0.
+
+    Each actor reserves `num_cpus` of Ray's CPU resource (a long-lived service that keeps
+    pools for several scenes at once gives each a fraction, so they never starve each other).
+    """
 
     def __init__(self, domain: str = "container", options: dict | None = None,
-                 n_shards: int | None = None) -> None:
+                 n_shards: int | None = None, num_cpus: float = 1.0) -> None:
         self.domain = domain
         self.options = dict(options or {})
         self.timings = {"ray_s": 0.0, "calls": 0}
@@ -45,7 +49,7 @@ class ShardPool:
         self._local = None
         if n_shards is None:
             n_shards = max(1, int(ray.cluster_resources().get("CPU", 1)))
-        actor_cls = remote_shard().options(scheduling_strategy="SPREAD")
+        actor_cls = remote_shard(num_cpus).options(scheduling_strategy="SPREAD")
         self.actors = [actor_cls.remote(domain, self.options) for _ in range(n_shards)]
 
     @property

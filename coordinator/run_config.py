@@ -36,6 +36,10 @@ class RunConfig(BaseModel):
     error_rate: float = Field(0.05, gt=0, lt=0.5)
     use_measurements: bool = True
     match: Literal["success", "state"] = "success"
+    # The real pose x from the particles' x_i: "mode" averages over the heaviest mode of the
+    # belief (bandwidth in metres of L); "mean" is the paper's weighted mean over all.
+    pose_rule: Literal["mode", "mean"] = "mode"
+    mode_bandwidth: float = Field(0.003, gt=0, le=0.1)
     # Resampling jitter: std = max(jitter * posterior std, jitter_floor * prior width).
     # A floor of 2 % (0.6 mm) lets a small particle set still drift onto the truth.
     jitter: float = Field(0.1, ge=0, le=1)

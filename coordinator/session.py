@@ -21,7 +21,7 @@ from sim_workers.configuration import Configuration
 from sim_workers.domains import load
 
 from .agents import agent as agent_spec
-from .belief import Belief, gaussian_log_likelihood, symbolic_log_likelihood
+from .belief import Belief, gaussian_log_likelihood, mode_mask, symbolic_log_likelihood
 from .experience import ExperiencePool
 from .reality import Observation
 from .run_config import RunConfig
@@ -137,7 +137,12 @@ class Session:
         if mode == "belief":
             sizes = self.particle_sizes()
             poses = np.array([self.domain.action_pose(self._props(s), config, action) for s in sizes])
-            return self.belief.weighted_mean(poses, angular=(3,)), poses
+            if self.config.pose_rule == "mean":         # the paper: weighted mean of all x_i
+                return self.belief.weighted_mean(poses, angular=(3,)), poses
+            keep = mode_mask(self.belief.particles, self.belief.weights, self.config.mode_bandwidth)
+            sub = Belief(self.belief.particles[keep], self.belief.log_weights[keep],
+                         self.belief.low, self.belief.high)
+            return sub.weighted_mean(poses[keep], angular=(3,)), poses
         if mode == "random":
             s = self.rng.uniform(spec.prior_low, spec.prior_high, self.n_blocks)
             return self.domain.action_pose(self._props(s), config, action), None

@@ -1,0 +1,103 @@
+"""`tmoc serve`: the HTTP service (FastAPI on uvicorn) on this machine.
+
+One uvicorn process with one event loop (never ``--workers N``: every worker would be its
+own Ray driver with its own shard pools), one Ray driver and the shard pools shared by every
+task and session. With TMOC_API_TOKEN set every route but /health needs
+``Authorization: Bearer <token>``; without it the server binds only to loopback unless
+``--insecure``.
+"""
+from __future__ import annotations
+
+import argparse
+import ipaddress
+import os
+import socket
+import sqlite3
+
+from ..cli import UsageError
+
+
+def register(sub) -> None:
+    p = sub.add_parser("serve", help="run the HTTP service (tasks, event streams, robot sessions)",
+                       formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    p.add_argument("--host", default="127.0.0.1", help="interface to bind")
+    p.add_argument("--port", type=int, default=8000)
+    p.add_argument("--db", default="tmoc.sqlite", help="SQLite file (created if missing; WAL mode)")
+    p.add_argument("--ray-address", default=None, help="join a running Ray cluster (default: local Ray)")
+    p.add_argument("--insecure", action="store_true",
+                   help="allow a non-loopback --host without TMOC_API_TOKEN")
+    p.add_argument("--max-particles", type=int, default=512, help="largest `particles` a task may ask for")
+    p.add_argument("--max-episodes", type=int, default=1000, help="largest `episodes` a task may ask for")
+    p.add_argument("--max-steps", type=int, default=1000, help="largest `max_steps` a task may ask for")
+    p.add_argument("--max-queued", type=int, default=64, help="queued tasks before submissions get 429")
+    p.add_argument("--max-sessions", type=int, default=16, help="active robot sessions before 429")
+    p.add_argument("--shards", type=int, default=None,
+                   help="shard actors per pool (default: one per CPU of the Ray cluster)")
+    p.add_argument("--log-level", default="info", choices=["critical", "error", "warning", "info", "debug"])
+    p.add_argument("--no-access-log", action="store_true", help="do not log every request")
+    p.set_defaults(func=main)
+
+
+def is_loopback(host: str) -> bool:
+    """True if every address `host` names is a loopback address."""
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        pass
+    try:
+        infos = socket.getaddrinfo(host, None)
+    except (socket.gaierror, UnicodeError) as exc:
+        raise UsageError(f"--host: cannot resolve {host!r} ({exc})") from None
+    return bool(infos) and all(ipaddress.ip_address(i[4][0].split("%")[0]).is_loopback for i in infos)
+
+
+def check_args(args) -> str | None:
+    """Validate the flags; returns the API token (None: no auth)."""
+    if not 0 <= args.port <= 65535:
+        raise UsageError(f"--port: {args.port} is outside [0, 65535]")
+    for flag in ("max_particles", "max_episodes", "max_steps", "max_queued", "max_sessions"):
+        if getattr(args, flag) < 1:
+            raise UsageError(f"--{flag.replace('_', '-')}: must be at least 1 (got {getattr(args, flag)})")
+    if args.max_particles > 5000:
+        raise UsageError(f"--max-particles: {args.max_particles} is over 5000, the most a task can use")
+    if args.max_episodes > 100000:
+        raise UsageError(f"--max-episodes: {args.max_episodes} is over 100000, the most a task can use")
+    if args.max_steps > 1000:
+        raise UsageError(f"--max-steps: {args.max_steps} is over 1000, the most a task can use")
+    if args.shards is not None and args.shards < 1:
+        raise UsageError(f"--shards: must be at least 1 (got {args.shards})")
+    token = os.environ.get("TMOC_API_TOKEN")
+    if token is not None and not token.strip():
+        raise UsageError("TMOC_API_TOKEN is set but empty: set a token or unset it")
+    if not token and not is_loopback(args.host) and not args.insecure:
+        raise UsageError(f"--host {args.host}: without TMOC_API_TOKEN the service binds only to "
+                         "loopback (127.0.0.1, ::1); set TMOC_API_TOKEN or pass --insecure")
+    return token or None
+
+
+def main(args) -> int:
+    token = check_args(args)
+    from api.app import Settings, create_app
+    from api.store import Store, lock_database
+
+    try:
+        lock = lock_database(args.db)        # one server per database
+        Store(args.db).close()
+    except (sqlite3.Error, OSError) as exc:
+        raise UsageError(f"--db {args.db}: {exc}") from None
+
+    import uvicorn
+
+    settings = Settings(db=args.db, ray_address=args.ray_address, token=token,
+                        max_particles=args.max_particles, max_episodes=args.max_episodes,
+                        max_steps=args.max_steps, max_queued=args.max_queued,
+                        max_sessions=args.max_sessions, n_shards=args.shards)
+    config = uvicorn.Config(create_app(settings), host=args.host, port=args.port, workers=1,
+                            log_level=args.log_level, access_log=not args.no_access_log,
+                            timeout_graceful_shutdown=10, lifespan="on")
+    server = uvicorn.Server(config)
+    try:
+        server.run()
+    finally:
+        lock.close()
+    return 0 if server.started else 1
