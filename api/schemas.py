@@ -1,0 +1,303 @@
+"""Request and response models of the HTTP service (pydantic v2).
+
+Request models are strict (a string is not an integer, ``true`` is not a number) and
+forbid unknown fields, so whatever does not match the published schema is refused with a
+422 naming the field. The task and session specs are built per server
+(:func:`task_spec_model`, :func:`session_create_model`) so that the server's limits
+(particles, episodes) are part of the OpenAPI schema and of the error message.
+"""
+from __future__ import annotations
+
+from datetime import datetime, timezone
+from typing import Annotated, Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field, create_model, model_validator
+
+from coordinator.run_config import Costs, RunConfig
+
+TaskStatus = Literal["queued", "running", "succeeded", "failed", "cancelled"]
+SessionStatus = Literal["active", "finished", "closed"]
+
+# Configuration arrays: metres / radians / unit quaternions; generous but finite bounds.
+Coord = Annotated[float, Field(ge=-100.0, le=100.0, allow_inf_nan=False)]
+Robot = Annotated[list[Coord], Field(min_length=5, max_length=5,
+                                     description="gripper tool point x, y, z (m), yaw (rad), opening (m)")]
+Pose7 = Annotated[list[Coord], Field(min_length=7, max_length=7,
+                                     description="position x, y, z (m) and quaternion x, y, z, w")]
+Atom = Annotated[str, Field(min_length=1, max_length=64)]
+ActionText = Annotated[str, Field(min_length=1, max_length=64)]
+
+TRAJECTORY_COLUMNS = ["t", "x", "y", "z", "yaw", "opening"]
+
+
+def ts(value: float | None) -> datetime | None:
+    return None if value is None else datetime.fromtimestamp(value, tz=timezone.utc)
+
+
+# ------------------------------------------------------------------------- specs
+class StrictCosts(Costs):
+    """Utility terms: action costs, the failure penalty and the delivery rewards."""
+
+    model_config = ConfigDict(extra="forbid", strict=True)
+
+
+_INT_FIELDS = ("particles", "episodes", "seed", "n_blocks", "max_steps", "shards")
+
+
+class _SpecBase(BaseModel):
+    """JSON has one number type: 3.0 is the integer 3 (as JSON Schema says it is); 3.5, "3"
+    and true are still refused by the strict int fields."""
+
+    model_config = ConfigDict(extra="forbid", strict=True)
+
+    @model_validator(mode="before")
+    @classmethod
+    def _integral_floats(cls, data: Any) -> Any:
+        if isinstance(data, dict) and any(isinstance(data.get(k), float) for k in _INT_FIELDS):
+            data = dict(data)
+            for k in _INT_FIELDS:
+                v = data.get(k)
+                if isinstance(v, float) and v.is_integer():
+                    data[k] = int(v)
+        return data
+
+
+def _spec_fields(exclude: set[str], max_particles: int, max_episodes: int, max_steps: int) -> dict:
+    fields: dict[str, Any] = {}
+    for name, info in RunConfig.model_fields.items():
+        if name in exclude:
+            continue
+        fields[name] = (info.annotation, info)
+    fields["costs"] = (StrictCosts, Field(default_factory=StrictCosts))
+    fields["particles"] = (int, Field(
+        min(RunConfig.model_fields["particles"].default, max_particles), ge=1, le=max_particles,
+        description=f"particles (grounded worlds) of the belief over L; this server's limit is "
+                    f"{max_particles} (--max-particles)"))
+    fields["episodes"] = (int, Field(
+        min(RunConfig.model_fields["episodes"].default, max_episodes), ge=1, le=max_episodes,
+        description=f"episodes to run; this server's limit is {max_episodes} (--max-episodes)"))
+    fields["max_steps"] = (int, Field(
+        min(RunConfig.model_fields["max_steps"].default, max_steps), ge=1, le=max_steps,
+        description=f"actions per episode at most; this server's limit is {max_steps} (--max-steps)"))
+    fields["seed"] = (int, Field(
+        0, ge=0, le=2**53 - 1, description="the run's seed (a JSON-safe integer, below 2^53)"))
+    fields["shards"] = (int | None, Field(
+        None, ge=0, le=4096,
+        description="ignored by the service: every task uses the server's shared shard pool"))
+    return fields
+
+
+def task_spec_model(max_particles: int, max_episodes: int, max_steps: int = 1000) -> type[BaseModel]:
+    """A task: the RunConfig fields, with this server's limits, and the kind of reality."""
+    fields = _spec_fields(set(), max_particles, max_episodes, max_steps)
+    fields["reality"] = (Literal["simulated"], Field(
+        "simulated", description="the real world of a task: a simulated grounded world holding "
+                                 "the hidden truth (`true_size`). An external robot is driven "
+                                 "through POST /v1/sessions instead."))
+    return create_model(
+        "TaskSpec", __base__=_SpecBase,
+        __doc__="A task spec: RunConfig fields (see `tmoc run`) and `reality`.", **fields)
+
+
+def session_create_model(max_particles: int, max_episodes: int, max_steps: int = 1000) -> type[BaseModel]:
+    """An external-robot session: the learning settings plus, optionally, the first
+    episode's initial observation. The truth (`true_size`) is the robot's world, not a field."""
+    fields = _spec_fields({"true_size"}, max_particles, max_episodes, max_steps)
+    fields["reality"] = (Literal["external"], Field(
+        "external", description="the robot that posts observations is the real world"))
+    fields["observation"] = (InitialObservation | None, Field(
+        None, description="the robot's initial observation: starts episode 0 at once"))
+    return create_model(
+        "SessionCreate", __base__=_SpecBase,
+        __doc__="A session spec (RunConfig fields but the truth) and an optional initial observation.",
+        **fields)
+
+
+# ------------------------------------------------------------------------- observations
+class ConfigurationIn(BaseModel):
+    """A scene's continuous configuration, as the robot measured it."""
+
+    model_config = ConfigDict(extra="forbid", strict=True)
+    robot: Robot
+    objects: Annotated[list[Pose7], Field(min_length=1, max_length=64,
+                                          description="one row per object in the domain's order "
+                                                      "(container: c, b1..bN)")]
+
+
+
+class InitialObservation(BaseModel):
+    """What the robot observed: the configuration; the symbolic state (Y^-1 of the
+    configuration when left out) and the measurements (derived from it when left out)."""
+
+    model_config = ConfigDict(extra="forbid", strict=True)
+    configuration: ConfigurationIn
+    state: Annotated[list[Atom], Field(max_length=256)] | None = Field(
+        None, description="ground atoms, e.g. is_in(b3,init); default: the server's Y^-1")
+    measurements: Annotated[list[Coord], Field(max_length=256)] | None = Field(
+        None, description="finger opening then x, y per block; default: read off the configuration")
+
+
+class StepObservation(InitialObservation):
+    """The outcome of the pending action; `action` echoes the action the robot executed."""
+
+    action: ActionText = Field(description="the pending action this observation answers")
+
+
+# ------------------------------------------------------------------------- responses
+class ErrorBody(BaseModel):
+    detail: str
+
+
+class Progress(BaseModel):
+    episodes_done: int
+    episodes: int
+
+
+class TaskView(BaseModel):
+    id: str
+    status: TaskStatus
+    spec: dict[str, Any]
+    progress: Progress
+    latest: dict[str, Any] | None = Field(None, description="the last episode's record")
+    cancel_requested: bool
+    attempts: int = Field(description="how many times the worker started it (restarts resume)")
+    error: str | None
+    result: dict[str, Any] | None = Field(None, description="summary and runtime when succeeded")
+    created_at: datetime
+    started_at: datetime | None
+    finished_at: datetime | None
+    links: dict[str, str]
+
+
+class CancelView(TaskView):
+    detail: str
+
+
+class TaskList(BaseModel):
+    items: list[TaskView]
+    total: int
+    limit: int
+    offset: int
+    next_offset: int | None
+
+
+class TaskCreated(BaseModel):
+    id: str
+    status: TaskStatus
+    location: str
+    links: dict[str, str]
+
+
+class Histogram(BaseModel):
+    edges: list[float]
+    weights: list[float]
+
+
+class BeliefSummary(BaseModel):
+    n: int
+    ess: float
+    mean: list[float]
+    std: list[float]
+    low: list[float]
+    high: list[float]
+    histogram: list[Histogram] = Field(description="one weighted histogram per property dimension")
+    degenerate_updates: int
+
+
+class BeliefView(BaseModel):
+    run_id: str
+    agent: str
+    episodes_done: int
+    property: str = "block_size_m"
+    learns_belief: bool = Field(description="false for agents that keep L at the prior (tmp_rl, toep)")
+    posterior: dict[str, Any] = Field(description="size_mean, size_std (m); per dimension mean/std")
+    belief: BeliefSummary | None
+    true_size: float | None = None
+
+
+class CurvePoint(BaseModel):
+    episode: int
+    utility: float
+    size_mean: float
+    size_std: float
+    actions: int
+    delivered: int
+    loads: list[int]
+
+
+class CurveView(BaseModel):
+    run_id: str
+    agent: str
+    true_size: float | None
+    points: list[CurvePoint]
+
+
+class StepView(BaseModel):
+    episode: int
+    step: int
+    action: str
+    pose: list[float]
+    trajectory: list[list[float]]
+    trajectory_columns: list[str] = TRAJECTORY_COLUMNS
+    expected: list[str] = Field(description="the planned symbolic state after the action")
+
+
+class SessionView(BaseModel):
+    id: str
+    status: SessionStatus
+    spec: dict[str, Any]
+    episodes: int
+    episodes_done: int
+    in_episode: bool
+    step: int = Field(description="actions observed in the current episode")
+    pending: StepView | None
+    posterior: dict[str, Any] | None
+    latest: dict[str, Any] | None = Field(None, description="the last finished episode's record")
+    created_at: datetime
+    updated_at: datetime
+    links: dict[str, str]
+
+
+class SessionList(BaseModel):
+    items: list[SessionView]
+    total: int
+    limit: int
+    offset: int
+    next_offset: int | None
+
+
+class SessionCreated(SessionView):
+    next: StepView | None = Field(None, description="the first pending step, if an episode started")
+
+
+class NextView(BaseModel):
+    session_id: str
+    episode: int
+    in_episode: bool
+    pending: StepView | None = Field(None, description="the action to execute; null when the "
+                                                       "episode is over")
+
+
+class ObservationResult(BaseModel):
+    session_id: str
+    report: dict[str, Any] = Field(description="action, success, observed state; ess and "
+                                               "resampled when the belief learns")
+    episode_done: bool
+    episode: dict[str, Any] | None = Field(None, description="the episode's record when it ended")
+    next: StepView | None
+    posterior: dict[str, Any]
+
+
+class EpisodeStarted(BaseModel):
+    session_id: str
+    episode: int
+    next: StepView | None
+
+
+class Health(BaseModel):
+    status: Literal["ok"]
+    version: str
+    ray: str
+    queued: int
+    running: str | None
+    auth: bool

@@ -1,0 +1,398 @@
+"""The service's durable state in one SQLite file (stdlib sqlite3, WAL mode).
+
+Tables:
+  tasks             one row per task: spec, status, progress, latest episode record, the
+                    belief summary and the runner checkpoint at the last episode boundary
+  episodes          one row per (run, episode): the episode record. The primary key makes a
+                    replayed episode impossible to store twice
+  sessions          external-robot sessions: spec, status, checkpoint at the last episode
+                    boundary, the current episode's initial observation, a mirror for reads
+  session_steps     the observations of a session's current episode, in order; with the
+                    checkpoint they rebuild the session exactly after a restart
+
+An episode row, the checkpoint it belongs to and the progress counter are written in one
+transaction, so after a crash the checkpoint and the stored episodes always agree: a resumed
+run starts at the first episode that is not stored, and no episode is lost or duplicated.
+
+Every thread gets its own connection (WAL readers never block the writer); writes are
+serialised by a process-wide lock and run as ``BEGIN IMMEDIATE`` transactions.
+"""
+from __future__ import annotations
+
+import json
+import sqlite3
+import threading
+import time
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Any, Iterator
+
+SCHEMA_VERSION = 1
+
+SCHEMA = """
+CREATE TABLE IF NOT EXISTS meta (key TEXT PRIMARY KEY, value TEXT NOT NULL);
+CREATE TABLE IF NOT EXISTS tasks (
+    seq INTEGER PRIMARY KEY AUTOINCREMENT,
+    id TEXT NOT NULL UNIQUE,
+    spec TEXT NOT NULL,
+    status TEXT NOT NULL,
+    episodes INTEGER NOT NULL,
+    episodes_done INTEGER NOT NULL DEFAULT 0,
+    cancel_requested INTEGER NOT NULL DEFAULT 0,
+    attempts INTEGER NOT NULL DEFAULT 0,
+    created_at REAL NOT NULL,
+    started_at REAL,
+    finished_at REAL,
+    updated_at REAL NOT NULL,
+    error TEXT,
+    latest TEXT,
+    belief TEXT,
+    checkpoint TEXT,
+    result TEXT
+);
+CREATE INDEX IF NOT EXISTS tasks_status ON tasks (status, seq);
+CREATE TABLE IF NOT EXISTS episodes (
+    run_id TEXT NOT NULL,
+    episode INTEGER NOT NULL,
+    record TEXT NOT NULL,
+    created_at REAL NOT NULL,
+    PRIMARY KEY (run_id, episode)
+) WITHOUT ROWID;
+CREATE TABLE IF NOT EXISTS sessions (
+    seq INTEGER PRIMARY KEY AUTOINCREMENT,
+    id TEXT NOT NULL UNIQUE,
+    spec TEXT NOT NULL,
+    status TEXT NOT NULL,
+    created_at REAL NOT NULL,
+    updated_at REAL NOT NULL,
+    episodes_done INTEGER NOT NULL DEFAULT 0,
+    in_episode INTEGER NOT NULL DEFAULT 0,
+    step INTEGER NOT NULL DEFAULT 0,
+    checkpoint TEXT NOT NULL,
+    episode_start TEXT,
+    pending TEXT,
+    posterior TEXT,
+    belief TEXT,
+    latest TEXT
+);
+CREATE TABLE IF NOT EXISTS session_steps (
+    session_id TEXT NOT NULL,
+    episode INTEGER NOT NULL,
+    step INTEGER NOT NULL,
+    observation TEXT NOT NULL,
+    report TEXT NOT NULL,
+    PRIMARY KEY (session_id, episode, step)
+) WITHOUT ROWID;
+"""
+
+TERMINAL = ("succeeded", "failed", "cancelled")
+
+_TASK_JSON = ("spec", "latest", "belief", "checkpoint", "result")
+_SESSION_JSON = ("spec", "checkpoint", "episode_start", "pending", "posterior", "belief", "latest")
+
+
+def _dumps(value: Any) -> str | None:
+    return None if value is None else json.dumps(value, separators=(",", ":"), allow_nan=False)
+
+
+def _row(row: sqlite3.Row | None, json_cols: tuple[str, ...], skip: tuple[str, ...] = ()) -> dict | None:
+    if row is None:
+        return None
+    out = {}
+    for k in row.keys():
+        if k in skip:
+            continue
+        v = row[k]
+        out[k] = json.loads(v) if (k in json_cols and v is not None) else v
+    return out
+
+
+def lock_database(path: str | Path):
+    """Hold an exclusive lock next to the database for this process's lifetime (released by
+    the kernel when the process dies, even by SIGKILL): two servers on one database would
+    both resume the same interrupted tasks. Returns the open lock file (keep it referenced);
+    raises OSError naming the holder if another process has it."""
+    import fcntl
+    import os
+
+    lock_path = str(Path(path).expanduser()) + ".lock"
+    fh = open(lock_path, "a+")
+    try:
+        fcntl.flock(fh, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except OSError:
+        fh.seek(0)
+        holder = fh.read().strip() or "another process"
+        fh.close()
+        raise OSError(f"the database is in use by {holder} ({lock_path})") from None
+    fh.seek(0)
+    fh.truncate()
+    fh.write(f"tmoc serve pid {os.getpid()}")
+    fh.flush()
+    return fh
+
+
+class QueueFull(Exception):
+    def __init__(self, queued: int, limit: int) -> None:
+        super().__init__(f"{queued} tasks queued, limit {limit}")
+        self.queued, self.limit = queued, limit
+
+
+class Store:
+    """SQLite-backed store; safe to use from any thread."""
+
+    def __init__(self, path: str | Path) -> None:
+        self.path = str(path)
+        if self.path != ":memory:":
+            Path(self.path).expanduser().resolve().parent.mkdir(parents=True, exist_ok=True)
+        self._local = threading.local()
+        self._write_lock = threading.RLock()
+        self._conns: list[sqlite3.Connection] = []
+        self._conns_lock = threading.Lock()
+        with self._write_lock:
+            db = self._conn()
+            db.executescript(SCHEMA)          # idempotent; executescript manages its own commit
+            db.execute("INSERT OR IGNORE INTO meta (key, value) VALUES ('schema_version', ?)",
+                       (str(SCHEMA_VERSION),))
+
+    # -- connections ---------------------------------------------------------------------
+    def _conn(self) -> sqlite3.Connection:
+        conn = getattr(self._local, "conn", None)
+        if conn is None:
+            conn = sqlite3.connect(self.path, timeout=30.0, isolation_level=None,
+                                   check_same_thread=False)
+            conn.row_factory = sqlite3.Row
+            conn.execute("PRAGMA journal_mode=WAL")
+            conn.execute("PRAGMA synchronous=NORMAL")
+            conn.execute("PRAGMA busy_timeout=30000")
+            conn.execute("PRAGMA foreign_keys=ON")
+            self._local.conn = conn
+            with self._conns_lock:
+                self._conns.append(conn)
+        return conn
+
+    @contextmanager
+    def _write(self) -> Iterator[sqlite3.Connection]:
+        with self._write_lock:
+            db = self._conn()
+            db.execute("BEGIN IMMEDIATE")
+            try:
+                yield db
+            except BaseException:
+                db.execute("ROLLBACK")
+                raise
+            else:
+                db.execute("COMMIT")
+
+    def journal_mode(self) -> str:
+        return self._conn().execute("PRAGMA journal_mode").fetchone()[0]
+
+    def close(self) -> None:
+        with self._conns_lock:
+            for c in self._conns:
+                try:
+                    c.close()
+                except sqlite3.Error:  # pragma: no cover
+                    pass
+            self._conns.clear()
+        self._local = threading.local()
+
+    # -- tasks ---------------------------------------------------------------------------
+    def create_task(self, task_id: str, spec: dict, max_queued: int | None = None) -> dict:
+        """Insert a queued task; raises QueueFull when `max_queued` tasks already wait."""
+        now = time.time()
+        with self._write() as db:
+            if max_queued is not None:
+                queued = db.execute("SELECT COUNT(*) FROM tasks WHERE status = 'queued'").fetchone()[0]
+                if queued >= max_queued:
+                    raise QueueFull(queued, max_queued)
+            db.execute(
+                "INSERT INTO tasks (id, spec, status, episodes, created_at, updated_at) "
+                "VALUES (?, ?, 'queued', ?, ?, ?)",
+                (task_id, _dumps(spec), int(spec["episodes"]), now, now))
+        return self.get_task(task_id)
+
+    def get_task(self, task_id: str, *, checkpoint: bool = False, belief: bool = False) -> dict | None:
+        cols = "*"
+        row = self._conn().execute(f"SELECT {cols} FROM tasks WHERE id = ?", (task_id,)).fetchone()
+        skip = tuple(c for c, keep in (("checkpoint", checkpoint), ("belief", belief)) if not keep)
+        return _row(row, _TASK_JSON, skip)
+
+    def task_status(self, task_id: str) -> tuple[str, int] | None:
+        row = self._conn().execute("SELECT status, episodes_done FROM tasks WHERE id = ?",
+                                   (task_id,)).fetchone()
+        return None if row is None else (row[0], row[1])
+
+    def list_tasks(self, limit: int, offset: int, status: str | None = None) -> tuple[list[dict], int]:
+        db = self._conn()
+        cols = ("seq, id, spec, status, episodes, episodes_done, cancel_requested, attempts, "
+                "created_at, started_at, finished_at, updated_at, error, latest, result")
+        if status:
+            rows = db.execute(f"SELECT {cols} FROM tasks WHERE status = ? ORDER BY seq DESC "
+                              "LIMIT ? OFFSET ?", (status, limit, offset)).fetchall()
+            total = db.execute("SELECT COUNT(*) FROM tasks WHERE status = ?", (status,)).fetchone()[0]
+        else:
+            rows = db.execute(f"SELECT {cols} FROM tasks ORDER BY seq DESC LIMIT ? OFFSET ?",
+                              (limit, offset)).fetchall()
+            total = db.execute("SELECT COUNT(*) FROM tasks").fetchone()[0]
+        return [_row(r, _TASK_JSON) for r in rows], total
+
+    def count_tasks(self, status: str) -> int:
+        return self._conn().execute("SELECT COUNT(*) FROM tasks WHERE status = ?", (status,)).fetchone()[0]
+
+    def next_runnable(self) -> str | None:
+        """The task to run next: an interrupted run (status `running` while no worker runs
+        it: after a restart), else the oldest queued task."""
+        row = self._conn().execute(
+            "SELECT id FROM tasks WHERE status IN ('running', 'queued') "
+            "ORDER BY CASE status WHEN 'running' THEN 0 ELSE 1 END, seq LIMIT 1").fetchone()
+        return None if row is None else row[0]
+
+    def claim_task(self, task_id: str) -> dict | None:
+        """queued -> running (or pick up an interrupted running task); None if not runnable."""
+        now = time.time()
+        with self._write() as db:
+            row = db.execute("SELECT status FROM tasks WHERE id = ?", (task_id,)).fetchone()
+            if row is None or row[0] not in ("queued", "running"):
+                return None
+            db.execute("UPDATE tasks SET status = 'running', attempts = attempts + 1, "
+                       "started_at = COALESCE(started_at, ?), updated_at = ? WHERE id = ?",
+                       (now, now, task_id))
+        return self.get_task(task_id, checkpoint=True)
+
+    def record_episode(self, run_id: str, record: dict, checkpoint: dict | None,
+                       belief: dict | None) -> bool:
+        """Store one task episode, its checkpoint and progress atomically; False if the
+        episode was already stored (nothing is then changed)."""
+        now = time.time()
+        rec, ckpt, bel = _dumps(record), _dumps(checkpoint), _dumps(belief)   # outside the lock
+        with self._write() as db:
+            cur = db.execute("INSERT INTO episodes (run_id, episode, record, created_at) VALUES (?, ?, ?, ?) "
+                             "ON CONFLICT (run_id, episode) DO NOTHING",
+                             (run_id, int(record["episode"]), rec, now))
+            if cur.rowcount == 0:
+                return False
+            db.execute("UPDATE tasks SET episodes_done = (SELECT COUNT(*) FROM episodes WHERE run_id = ?), "
+                       "latest = ?, checkpoint = COALESCE(?, checkpoint), belief = COALESCE(?, belief), "
+                       "updated_at = ? WHERE id = ?",
+                       (run_id, rec, ckpt, bel, now, run_id))
+        return True
+
+    def finish_task(self, task_id: str, status: str, *, error: str | None = None,
+                    result: dict | None = None) -> None:
+        now = time.time()
+        with self._write() as db:
+            db.execute("UPDATE tasks SET status = ?, error = ?, result = COALESCE(?, result), "
+                       "finished_at = ?, updated_at = ? WHERE id = ? AND status IN ('queued', 'running')",
+                       (status, error, _dumps(result), now, now, task_id))
+
+    def cancel_task(self, task_id: str) -> str | None:
+        """Cancel: a queued task is cancelled at once; a running one is flagged (it stops at
+        the next episode boundary). Returns the status after the call (None: unknown id)."""
+        now = time.time()
+        with self._write() as db:
+            row = db.execute("SELECT status FROM tasks WHERE id = ?", (task_id,)).fetchone()
+            if row is None:
+                return None
+            status = row[0]
+            if status == "queued":
+                db.execute("UPDATE tasks SET status = 'cancelled', cancel_requested = 1, "
+                           "finished_at = ?, updated_at = ? WHERE id = ?", (now, now, task_id))
+                return "cancelled"
+            if status == "running":
+                db.execute("UPDATE tasks SET cancel_requested = 1, updated_at = ? WHERE id = ?",
+                           (now, task_id))
+            return status
+
+    def episodes(self, run_id: str, after: int = -1, limit: int | None = None) -> list[tuple[int, str]]:
+        """(episode, record JSON text) with episode > `after`, in order."""
+        sql = "SELECT episode, record FROM episodes WHERE run_id = ? AND episode > ? ORDER BY episode"
+        args: tuple = (run_id, after)
+        if limit is not None:
+            sql += " LIMIT ?"
+            args += (limit,)
+        return [(r[0], r[1]) for r in self._conn().execute(sql, args).fetchall()]
+
+    # -- sessions ------------------------------------------------------------------------
+    def create_session(self, session_id: str, spec: dict, checkpoint: dict, mirror: dict,
+                       max_active: int | None = None) -> None:
+        now = time.time()
+        with self._write() as db:
+            if max_active is not None:
+                active = db.execute("SELECT COUNT(*) FROM sessions WHERE status = 'active'").fetchone()[0]
+                if active >= max_active:
+                    raise QueueFull(active, max_active)
+            db.execute(
+                "INSERT INTO sessions (id, spec, status, created_at, updated_at, checkpoint, "
+                "episode_start, in_episode, pending, posterior, belief) "
+                "VALUES (?, ?, 'active', ?, ?, ?, ?, ?, ?, ?, ?)",
+                (session_id, _dumps(spec), now, now, _dumps(checkpoint),
+                 _dumps(mirror.get("episode_start")), int(mirror.get("episode_start") is not None),
+                 _dumps(mirror.get("pending")), _dumps(mirror.get("posterior")),
+                 _dumps(mirror.get("belief"))))
+
+    def get_session(self, session_id: str, *, checkpoint: bool = False, belief: bool = False) -> dict | None:
+        row = self._conn().execute("SELECT * FROM sessions WHERE id = ?", (session_id,)).fetchone()
+        skip = tuple(c for c, keep in (("checkpoint", checkpoint), ("episode_start", checkpoint),
+                                       ("belief", belief)) if not keep)
+        return _row(row, _SESSION_JSON, skip)
+
+    def list_sessions(self, limit: int, offset: int) -> tuple[list[dict], int]:
+        db = self._conn()
+        rows = db.execute("SELECT seq, id, spec, status, created_at, updated_at, episodes_done, in_episode, "
+                          "step, pending, posterior, latest FROM sessions ORDER BY seq DESC LIMIT ? OFFSET ?",
+                          (limit, offset)).fetchall()
+        total = db.execute("SELECT COUNT(*) FROM sessions").fetchone()[0]
+        return [_row(r, _SESSION_JSON) for r in rows], total
+
+    def session_steps(self, session_id: str, episode: int) -> list[dict]:
+        rows = self._conn().execute(
+            "SELECT observation FROM session_steps WHERE session_id = ? AND episode = ? ORDER BY step",
+            (session_id, episode)).fetchall()
+        return [json.loads(r[0]) for r in rows]
+
+    def session_start_episode(self, session_id: str, episode_start: dict, pending: dict | None) -> None:
+        now = time.time()
+        with self._write() as db:
+            db.execute("UPDATE sessions SET episode_start = ?, in_episode = 1, step = 0, pending = ?, "
+                       "updated_at = ? WHERE id = ?",
+                       (_dumps(episode_start), _dumps(pending), now, session_id))
+
+    def session_set_pending(self, session_id: str, pending: dict | None) -> None:
+        with self._write() as db:
+            db.execute("UPDATE sessions SET pending = ?, updated_at = ? WHERE id = ?",
+                       (_dumps(pending), time.time(), session_id))
+
+    def session_record_step(self, session_id: str, episode: int, step: int, observation: dict,
+                            report: dict, *, pending: dict | None, posterior: dict | None,
+                            belief: dict | None, finished: dict | None = None,
+                            checkpoint: dict | None = None, status: str = "active") -> None:
+        """One observed step; when it ends the episode (`finished` is the episode record),
+        also the episode row and the new checkpoint, in the same transaction."""
+        now = time.time()
+        with self._write() as db:
+            db.execute("INSERT INTO session_steps (session_id, episode, step, observation, report) "
+                       "VALUES (?, ?, ?, ?, ?)",
+                       (session_id, episode, step, _dumps(observation), _dumps(report)))
+            if finished is not None:
+                db.execute("INSERT INTO episodes (run_id, episode, record, created_at) VALUES (?, ?, ?, ?) "
+                           "ON CONFLICT (run_id, episode) DO NOTHING",
+                           (session_id, episode, _dumps(finished), now))
+                db.execute("UPDATE sessions SET checkpoint = ?, episode_start = NULL, in_episode = 0, "
+                           "episodes_done = episodes_done + 1, latest = ?, status = ?, step = ?, "
+                           "pending = NULL, posterior = ?, belief = COALESCE(?, belief), updated_at = ? "
+                           "WHERE id = ?",
+                           (_dumps(checkpoint), _dumps(finished), status, step + 1, _dumps(posterior),
+                            _dumps(belief), now, session_id))
+            else:
+                db.execute("UPDATE sessions SET step = ?, pending = ?, posterior = ?, "
+                           "belief = COALESCE(?, belief), updated_at = ? WHERE id = ?",
+                           (step + 1, _dumps(pending), _dumps(posterior), _dumps(belief), now, session_id))
+
+    def close_session(self, session_id: str) -> str | None:
+        with self._write() as db:
+            row = db.execute("SELECT status FROM sessions WHERE id = ?", (session_id,)).fetchone()
+            if row is None:
+                return None
+            db.execute("UPDATE sessions SET status = 'closed', pending = NULL, updated_at = ? WHERE id = ?",
+                       (time.time(), session_id))
+            return "closed"

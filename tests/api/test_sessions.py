@@ -1,0 +1,130 @@
+"""External robot sessions: a test robot (a grounded world holding the hidden truth) drives
+the service step by step; observations that do not fit get a 409 and change nothing."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from coordinator.reality import SimulatedReality
+
+from .conftest import stream_events
+
+TRUE_SIZE = 0.050
+PRIOR_STD = (0.060 - 0.030) / np.sqrt(12)
+
+
+@pytest.fixture()
+def robot():
+    world = SimulatedReality("container", {"n_blocks": 8}, {"block_sizes": np.full(8, TRUE_SIZE)})
+    yield world
+    world.close()
+
+
+def _observation(outcome, action=None, **extra) -> dict:
+    body = {"configuration": outcome.configuration.to_dict(), **extra}
+    if action is not None:
+        body["action"] = action
+    return body
+
+
+def test_a_robot_driven_session_converges_like_a_simulated_task(client, robot):
+    learning = {"agent": "tmoc", "particles": 24, "episodes": 1, "max_steps": 6, "seed": 3}
+    start = robot.start_episode(np.random.default_rng(0))
+    r = client.post("/v1/sessions", json={**learning, "observation": _observation(start)})
+    assert r.status_code == 201, r.text
+    created = r.json()
+    sid, step = created["id"], created["next"]
+    assert r.headers["location"] == f"/v1/sessions/{sid}"
+    assert created["in_episode"] and step["episode"] == 0 and step["step"] == 0
+    assert step["trajectory_columns"] == ["t", "x", "y", "z", "yaw", "opening"]
+
+    reports = []
+    while step is not None:
+        # GET next is idempotent: the same pending step until it is observed.
+        pending = client.get(f"/v1/sessions/{sid}/next").json()["pending"]
+        assert pending == step
+        outcome = robot.execute(np.array(step["trajectory"]), step["action"])
+        r = client.post(f"/v1/sessions/{sid}/observations", json=_observation(outcome, step["action"]))
+        assert r.status_code == 200, r.text
+        body = r.json()
+        reports.append(body["report"])
+        assert body["report"]["state"] == sorted(outcome.state)
+        step = body["next"]
+    assert body["episode_done"] and body["episode"]["actions"] == len(reports) == 6
+
+    post = client.get(f"/v1/sessions/{sid}/belief").json()
+    assert abs(post["posterior"]["size_mean"] - TRUE_SIZE) < 0.003, post["posterior"]
+    assert post["posterior"]["size_std"] < 0.5 * PRIOR_STD
+    assert post["belief"]["n"] == 24
+    view = client.get(f"/v1/sessions/{sid}").json()
+    assert view["status"] == "finished" and view["episodes_done"] == 1 and not view["in_episode"]
+    assert [p["episode"] for p in client.get(f"/v1/sessions/{sid}/curve").json()["points"]] == [0]
+    assert client.get(f"/v1/sessions/{sid}/next").status_code == 409
+
+    # The same learner as a simulated task with the same truth gets there too.
+    task = client.post("/v1/tasks", json={**learning, "true_size": TRUE_SIZE}).json()["id"]
+    events = stream_events(client, task)
+    assert events[-1]["data"]["status"] == "succeeded"
+    sim = events[-2]["data"]["posterior"]
+    assert abs(sim["size_mean"] - TRUE_SIZE) < 0.003, sim
+
+
+def test_observations_that_do_not_fit_get_409_and_change_nothing(client, robot):
+    r = client.post("/v1/sessions", json={"particles": 2, "episodes": 1, "max_steps": 3, "seed": 1})
+    assert r.status_code == 201 and r.json()["next"] is None and not r.json()["in_episode"]
+    sid = r.json()["id"]
+    start = robot.start_episode(np.random.default_rng(1))
+
+    # No episode yet: nothing is pending.
+    assert client.get(f"/v1/sessions/{sid}/next").status_code == 409
+    r = client.post(f"/v1/sessions/{sid}/observations", json=_observation(start, "pickup(r,b1,init)"))
+    assert r.status_code == 409 and "episode" in r.json()["detail"]
+
+    r = client.post(f"/v1/sessions/{sid}/episodes", json=_observation(start))
+    assert r.status_code == 201, r.text
+    step = r.json()["next"]
+    assert client.post(f"/v1/sessions/{sid}/episodes", json=_observation(start)).status_code == 409
+    before = client.get(f"/v1/sessions/{sid}").json()
+
+    outcome = robot.execute(np.array(step["trajectory"]), step["action"])
+    good = _observation(outcome, step["action"])
+    conf = good["configuration"]
+    bad = {
+        "action": {**good, "action": "push(r,c,init,goal)"},
+        "configuration.objects": {**good, "configuration": {**conf, "objects": conf["objects"][:3]}},
+        "measurements": {**good, "measurements": [0.0, 1.0]},
+        "state": {**good, "state": ["is_in(b1,init)", "hand_empty(r)", "flying(b2)"]},
+        "quaternion": {**good, "configuration": {**conf, "objects": [row[:3] + [0, 0, 0, 0]
+                                                                     for row in conf["objects"]]}},
+    }
+    for name, body in bad.items():
+        r = client.post(f"/v1/sessions/{sid}/observations", json=body)
+        assert r.status_code == 409, (name, r.text)
+        assert name.split(".")[0] in r.json()["detail"] or name == "quaternion", (name, r.text)
+    # Malformed arrays (not the schema's shapes or not numbers) are refused before anything.
+    for body, field in (({**good, "configuration": {**conf, "robot": conf["robot"][:4]}}, "robot"),
+                        ({**good, "configuration": {**conf, "robot": ["a"] * 5}}, "robot"),
+                        ({**good, "configuration": {**conf, "objects": [[0.0] * 6]}}, "objects"),
+                        ({k: v for k, v in good.items() if k != "action"}, "action")):
+        r = client.post(f"/v1/sessions/{sid}/observations", json=body)
+        assert r.status_code == 422 and field in r.json()["message"], r.text
+    r = client.post(f"/v1/sessions/{sid}/observations", content=b'{"action": "x", "configuration": NaN}',
+                    headers={"content-type": "application/json"})
+    assert r.status_code == 422 and "configuration" in r.json()["message"]
+
+    after = client.get(f"/v1/sessions/{sid}").json()
+    assert after == before                                   # nothing changed
+    assert client.get(f"/v1/sessions/{sid}/next").json()["pending"] == step
+
+    r = client.post(f"/v1/sessions/{sid}/observations", json=good)
+    assert r.status_code == 200, r.text
+    assert client.get(f"/v1/sessions/{sid}").json()["step"] == 1
+    # The step is consumed: the same observation again no longer fits.
+    assert client.post(f"/v1/sessions/{sid}/observations", json=good).status_code == 409
+
+    assert client.delete(f"/v1/sessions/{sid}").json()["status"] == "closed"
+    assert client.get(f"/v1/sessions/{sid}/next").status_code == 409
+    for method, path in (("GET", "next"), ("POST", "observations"), ("POST", "episodes")):
+        body = {"observations": good, "episodes": _observation(outcome)}.get(path)
+        r = client.request(method, f"/v1/sessions/s_nope/{path}", json=body)
+        assert r.status_code == 404, (path, r.text)
