@@ -6,15 +6,14 @@ reality gap (friction and placement jitter); an external robot implements the sa
 """
 from __future__ import annotations
 
-import dataclasses
 from dataclasses import dataclass
 from typing import Protocol
 
 import numpy as np
 
-from sim_workers.configuration import Configuration, quat_from_yaw
-from sim_workers.domains import load
+from sim_workers.configuration import Configuration
 from sim_workers.grounded_world import GroundedWorld
+from sim_workers.probe import jitter_planar, jittered_domain
 
 
 @dataclass(frozen=True)
@@ -50,19 +49,14 @@ class SimulatedReality:
         self.world: GroundedWorld | None = None
 
     def start_episode(self, rng: np.random.Generator) -> Observation:
-        base = load(self.domain_name, **self.options)
-        mus = {f.name: getattr(base.spec, f.name) * rng.uniform(1 - self.gap.friction, 1 + self.gap.friction)
-               for f in dataclasses.fields(base.spec) if f.name.startswith("mu_")}
-        domain = load(self.domain_name, **self.options, **mus)
+        domain = jittered_domain(rng, self.gap.friction, domain=self.domain_name, **self.options)
         if self.world is not None:
             self.world.close()
         self.world = GroundedWorld(domain)
         config = domain.initial_configuration(self.truth)
-        objects = config.objects.copy()
-        for i in range(1, len(objects)):      # row 0 is the container: it stays put
-            objects[i, :2] += np.clip(rng.normal(0, self.gap.placement_m, 2),
-                                      -2 * self.gap.placement_m, 2 * self.gap.placement_m)
-            objects[i, 3:] = quat_from_yaw(rng.uniform(-self.gap.yaw_rad, self.gap.yaw_rad))
+        # Row 0 is the container: it stays put; the blocks are placed with jitter.
+        objects = jitter_planar(rng, config.objects, range(1, len(config.objects)),
+                                self.gap.placement_m, self.gap.yaw_rad)
         placed = self.world.reset(Configuration(config.robot, objects), self.truth)
         return Observation(placed, domain.symbolic_state(placed), domain.measurements(placed))
 

@@ -37,20 +37,22 @@ class ProbeResult:
         return {**dataclasses.asdict(self), "success_rate": self.success_rate}
 
 
-def jittered_domain(rng: np.random.Generator, **options):
-    """The container domain with every friction coefficient scaled by U(0.9, 1.1)."""
-    base = load("container", **options)
-    mus = {f.name: getattr(base.spec, f.name) * rng.uniform(1 - FRICTION_JITTER, 1 + FRICTION_JITTER)
+def jittered_domain(rng: np.random.Generator, friction: float = FRICTION_JITTER,
+                    domain: str = "container", **options):
+    """`domain` with every friction coefficient (spec fields mu_*) scaled by U(1 +- friction)."""
+    base = load(domain, **options)
+    mus = {f.name: getattr(base.spec, f.name) * rng.uniform(1 - friction, 1 + friction)
            for f in dataclasses.fields(base.spec) if f.name.startswith("mu_")}
-    return load("container", **options, **mus)
+    return load(domain, **{**options, **mus})
 
 
-def _jitter_planar(rng: np.random.Generator, objects: np.ndarray, rows) -> np.ndarray:
+def jitter_planar(rng: np.random.Generator, objects: np.ndarray, rows,
+                  placement_m: float = PLACEMENT_JITTER_M, yaw_rad: float = YAW_JITTER_RAD) -> np.ndarray:
+    """Objects `rows` moved by N(0, placement) clipped at 2 std, and turned by U(+-yaw)."""
     objects = objects.copy()
     for i in rows:
-        objects[i, :2] += np.clip(rng.normal(0, PLACEMENT_JITTER_M, 2), -2 * PLACEMENT_JITTER_M,
-                                  2 * PLACEMENT_JITTER_M)
-        objects[i, 3:] = quat_from_yaw(rng.uniform(-YAW_JITTER_RAD, YAW_JITTER_RAD))
+        objects[i, :2] += np.clip(rng.normal(0, placement_m, 2), -2 * placement_m, 2 * placement_m)
+        objects[i, 3:] = quat_from_yaw(rng.uniform(-yaw_rad, yaw_rad))
     return objects
 
 
@@ -58,7 +60,7 @@ def loaded_configuration(domain, sizes: np.ndarray, load_k: int, rng: np.random.
     """The first `load_k` blocks piled in the container, two side by side per layer."""
     spec = domain.spec
     config = domain.initial_configuration({"block_sizes": sizes})
-    objects = _jitter_planar(rng, config.objects, range(1, 1 + spec.n_blocks))
+    objects = jitter_planar(rng, config.objects, range(1, 1 + spec.n_blocks))
     c = objects[0, :2]
     for i in range(load_k):
         s = sizes[i]
@@ -89,7 +91,7 @@ def run_trial(action: str, true_size: float, believed_size: float, load_k: int,
             out = _act(world, domain, config, believed, "push(r,c,init,goal)")
             return all(f"is_in(b{i + 1},goal)" in out.state for i in range(load_k))
         config = domain.initial_configuration(truth)
-        config = Configuration(config.robot, _jitter_planar(rng, config.objects, range(1, 1 + n_blocks)))
+        config = Configuration(config.robot, jitter_planar(rng, config.objects, range(1, 1 + n_blocks)))
         config = world.reset(config, truth)
         if action == "pickup":
             b = f"b{int(rng.integers(n_blocks)) + 1}"
