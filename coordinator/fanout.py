@@ -1,13 +1,42 @@
-"""Fan-out of particle simulations to shard actors spread over the Ray cluster.
+"""Fan-out of particle simulations to shard actors placed over the Ray cluster's nodes.
 
 One remote call per shard per action carries that shard's contiguous slice of the
-particles. Shards are stateless from the coordinator's point of view, so Ray's actor fault
-tolerance (restart + task retry) re-runs a dead shard's batch with identical results.
+particles. Shards are stateless from the coordinator's point of view, and every
+particle-action runs in a freshly rebuilt world, so a batch gives bit-identical results on
+any shard of any node: that is what makes placement free and failure recovery exact.
+
+Placement. A pool plans one shard per CPU of every alive node (or ``n_shards`` dealt over
+the nodes' CPUs in turn) and pins each shard to its planned node with a *soft* node
+affinity. Why not the alternatives:
+
+- Ray's ``SPREAD`` scheduling strategy is best effort: it deals actors round robin over
+  nodes with room, which is even for a pool created at once, but when a node joins it
+  does not promise that the shards added for it land on it (the service's pools reserve a
+  fraction of a CPU per shard, so the old nodes still "have room").
+- A placement group reserves fixed bundles: it cannot grow when nodes join, and a bundle
+  whose node died is only rescheduled where a whole free bundle fits, so the shard's
+  restart waits (for ever on a fixed cluster) while its batch is in flight.
+
+Soft affinity gives the exact plan, and being soft it never pins a restart to a dead node.
+``refresh()`` re-plans against the cluster as it is now (the service calls it at the start
+of every task): shards on dead nodes are dropped, shards are added where nodes or CPUs
+were added.
+
+Failure. A shard whose process dies is restarted by Ray in place and its call retried
+(``max_restarts``/``max_task_retries``). A shard whose *node* is gone usually cannot be
+restarted (the survivors' CPUs are taken by their own shards), so while a call is in flight
+the pool checks every ``check_s`` seconds whether a node it waits on left the cluster; if
+so it drops that node's shards and re-runs their slices on the surviving shards (one more
+call each). Results are concatenated in particle order, so the action's outcome is
+identical to an undisturbed one.
 """
 from __future__ import annotations
 
 import os
+import threading
 import time
+from collections import Counter
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -28,77 +57,243 @@ def init_ray(address: str | None = None, num_cpus: int = 2) -> dict:
     return ray.cluster_resources()
 
 
+def cluster_nodes() -> list[dict]:
+    """The alive Ray nodes: node_id, hostname, address, cpus; the driver's node first."""
+    import ray
+
+    here = ray.get_runtime_context().get_node_id()
+    nodes = [{"node_id": n["NodeID"], "hostname": n.get("NodeManagerHostname", ""),
+              "address": n.get("NodeManagerAddress", ""),
+              "cpus": int(n.get("Resources", {}).get("CPU", 0))}
+             for n in ray.nodes() if n.get("Alive")]
+    nodes.sort(key=lambda n: (n["node_id"] != here, n["address"], n["node_id"]))
+    return nodes
+
+
+def plan_shards(nodes: list[dict], n_shards: int | None = None) -> list[str]:
+    """The node of every shard: one per CPU of each node (`n_shards` None), else `n_shards`
+    dealt over the nodes' CPUs in turn (node A's 1st CPU, node B's 1st, A's 2nd, ...)."""
+    slots = [n["node_id"] for k in range(max((n["cpus"] for n in nodes), default=0))
+             for n in nodes if n["cpus"] > k]
+    if not slots or n_shards is None:
+        return slots
+    return [slots[i % len(slots)] for i in range(n_shards)]
+
+
+@dataclass(eq=False)
+class _ShardRef:
+    actor: object
+    node_id: str            # where it was placed, then where it last answered from
+    hostname: str
+
+
 class ShardPool:
-    """`n_shards` shard actors (default: one per CPU of the cluster), or in-process if 0.
+    """Shard actors over the cluster's nodes (default: one per CPU of every node), or one
+    in-process shard if `n_shards` is 0.
 
     Each actor reserves `num_cpus` of Ray's CPU resource (a long-lived service that keeps
     pools for several scenes at once gives each a fraction, so they never starve each other).
     """
 
     def __init__(self, domain: str = "container", options: dict | None = None,
-                 n_shards: int | None = None, num_cpus: float = 1.0) -> None:
+                 n_shards: int | None = None, num_cpus: float = 1.0, check_s: float = 1.0,
+                 wait_for_cpus_s: float = 60.0) -> None:
         self.domain = domain
         self.options = dict(options or {})
-        self.timings = {"ray_s": 0.0, "calls": 0}
+        self.timings = {"ray_s": 0.0, "calls": 0, "reruns": 0}
+        self.requested = n_shards
+        self.num_cpus = num_cpus
+        self.check_s = check_s
+        self._shards: list[_ShardRef] = []
+        self._actor_cls = None
+        self._lock = threading.Lock()
         if n_shards == 0:
             self._local = Shard(domain, self.options)
-            self.actors = []
             return
-        import ray
-
         self._local = None
-        if n_shards is None:
-            n_shards = max(1, int(ray.cluster_resources().get("CPU", 1)))
-        actor_cls = remote_shard(num_cpus).options(scheduling_strategy="SPREAD")
-        self.actors = [actor_cls.remote(domain, self.options) for _ in range(n_shards)]
+        # A cluster whose head offers no CPU may not have its workers yet (just deployed).
+        deadline = time.monotonic() + wait_for_cpus_s
+        while self.refresh() == 0:
+            if time.monotonic() > deadline:
+                raise RuntimeError(f"no alive Ray node has a CPU for a shard (waited "
+                                   f"{wait_for_cpus_s:.0f} s): start a worker node "
+                                   "(`ray start --address HEAD_IP:6379`)")
+            time.sleep(1.0)
+
+    # -- placement ---------------------------------------------------------------------
+    @property
+    def actors(self) -> list:
+        return [s.actor for s in self._shards]
 
     @property
     def n_shards(self) -> int:
-        return max(1, len(self.actors))
+        return max(1, len(self._shards))
 
-    def nodes(self) -> list[dict]:
+    def refresh(self) -> int:
+        """Re-plan against the cluster as it is now: drop the shards of nodes that left and
+        add shards where the plan has more than there are (nodes joined, CPUs added).
+        Returns how many shards were added."""
+        if self._local is not None:
+            return 0
+        from ray.util.scheduling_strategies import NodeAffinitySchedulingStrategy
+
+        nodes = cluster_nodes()
+        alive = {n["node_id"]: n for n in nodes}
+        self._drop([s for s in self._shards if s.node_id not in alive])
+        with self._lock:
+            have = Counter(s.node_id for s in self._shards)
+            missing = []
+            for node_id in plan_shards(nodes, self.requested):
+                if have[node_id] > 0:
+                    have[node_id] -= 1
+                else:
+                    missing.append(node_id)
+            if self.requested is not None:
+                missing = missing[:max(0, self.requested - len(self._shards))]
+            if missing and self._actor_cls is None:
+                self._actor_cls = remote_shard(self.num_cpus)
+            for node_id in missing:
+                actor = self._actor_cls.options(
+                    scheduling_strategy=NodeAffinitySchedulingStrategy(node_id, soft=True),
+                ).remote(self.domain, self.options)
+                self._shards.append(_ShardRef(actor, node_id, alive[node_id]["hostname"]))
+        return len(missing)
+
+    def _drop(self, shards: list[_ShardRef]) -> None:
+        """Forget these shards and end their actors for good (no restart)."""
+        if not shards:
+            return
+        import ray
+
+        with self._lock:
+            self._shards = [s for s in self._shards if all(s is not d for d in shards)]
+        for s in shards:
+            try:
+                ray.kill(s.actor, no_restart=True)
+            except Exception:  # pragma: no cover - already gone
+                pass
+
+    def _on_dead_nodes(self, shards) -> list[_ShardRef]:
+        import ray
+
+        alive = {n["NodeID"] for n in ray.nodes() if n.get("Alive")}
+        return [s for s in shards if s.node_id not in alive]
+
+    def nodes(self, timeout: float = 30.0) -> list[dict]:
+        """Where every shard runs (node_id, hostname, pid, rss_mb, worlds); a shard that does
+        not answer within `timeout` (still starting, or its node just died) is reported
+        where it was placed."""
         if self._local is not None:
             return [self._local.node()]
         import ray
 
-        return ray.get([a.node.remote() for a in self.actors])
+        shards = list(self._shards)
+        refs = [s.actor.node.remote() for s in shards]
+        if not refs:
+            return []
+        ready, _ = ray.wait(refs, num_returns=len(refs), timeout=timeout)
+        done = set(ready)
+        out = []
+        for s, ref in zip(shards, refs):
+            if ref in done:
+                try:
+                    info = ray.get(ref)
+                    s.node_id, s.hostname = info["node_id"], info["hostname"]
+                    out.append(info)
+                    continue
+                except ray.exceptions.RayActorError:
+                    pass
+            out.append({"node_id": s.node_id, "hostname": s.hostname, "pid": None})
+        return out
 
+    # -- simulation --------------------------------------------------------------------
     def simulate(self, start: np.ndarray, sizes: np.ndarray, action: str, trajectory: np.ndarray,
                  start_time=0.0) -> dict:
         """Simulate `action` for every particle; results in particle order.
 
         The split into shards changes nothing in the results: every particle-action runs
-        in a freshly built world (sim_workers.grounded_world).
+        in a freshly built world (sim_workers.grounded_world). Besides the arrays, key
+        ``nodes`` maps each node that answered to its hostname and particle-action count,
+        and ``reruns`` counts slices re-run because their node was lost.
         """
         sizes = np.asarray(sizes, dtype=np.float64)
         n = len(sizes)
         starts = np.broadcast_to(np.asarray(start_time, dtype=np.float64), (n,))
         traj = np.asarray(trajectory, dtype=np.float64)
         if self._local is not None:
-            parts = [self._local.simulate(start, sizes, action, traj, starts)]
+            parts = [self._local.simulate_batch(start, sizes, action, traj, starts)]
+            reruns = 0
         else:
-            import ray
-
-            bounds = np.linspace(0, n, self.n_shards + 1).astype(int)
-            refs = []
-            for actor, lo, hi in zip(self.actors, bounds[:-1], bounds[1:]):
-                if hi > lo:
-                    tr = traj if traj.ndim == 2 else traj[lo:hi]
-                    refs.append(actor.simulate.remote(start, sizes[lo:hi], action, tr, starts[lo:hi]))
-            t0 = time.perf_counter()
-            parts = ray.get(refs)
-            self.timings["ray_s"] += time.perf_counter() - t0
+            parts, reruns = self._fan_out(start, sizes, action, traj, starts)
         self.timings["calls"] += 1
+        self.timings["reruns"] += reruns
+        nodes: dict[str, dict] = {}
+        for p in parts:
+            where = p.pop("node")
+            entry = nodes.setdefault(where["node_id"], {"hostname": where["hostname"],
+                                                         "particle_actions": 0})
+            entry["particle_actions"] += len(p["steps"])
         out = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
         out["states"] = [decode_state(s) for s in out["states"]]
+        out["nodes"] = nodes
+        out["reruns"] = reruns
         return out
+
+    def _fan_out(self, start, sizes, action, traj, starts) -> tuple[list[dict], int]:
+        """One call per shard; a slice whose node is lost is re-split over the survivors."""
+        import ray
+
+        pending: dict = {}                # ref -> (lo, hi, shard)
+
+        def submit(lo: int, hi: int, shards: list[_ShardRef]) -> None:
+            bounds = np.linspace(lo, hi, len(shards) + 1).astype(int)
+            for s, a, b in zip(shards, bounds[:-1], bounds[1:]):
+                if b > a:
+                    tr = traj if traj.ndim == 2 else traj[a:b]
+                    ref = s.actor.simulate_batch.remote(start, sizes[a:b], action, tr, starts[a:b])
+                    pending[ref] = (a, b, s)
+
+        submit(0, len(sizes), list(self._shards))
+        parts: dict[int, dict] = {}
+        reruns = 0
+        t0 = time.perf_counter()
+        while pending:
+            ready, _ = ray.wait(list(pending), num_returns=len(pending), timeout=self.check_s)
+            lost_slices, lost = [], []
+            for ref in ready:
+                lo, hi, s = pending.pop(ref)
+                try:
+                    part = ray.get(ref)
+                except ray.exceptions.RayActorError:      # ended for good: re-run elsewhere
+                    lost_slices.append((lo, hi))
+                    lost.append(s)
+                    continue
+                s.node_id, s.hostname = part["node"]["node_id"], part["node"]["hostname"]
+                parts[lo] = part
+            if pending:                                   # still waiting: any node lost?
+                dead = self._on_dead_nodes({id(s): s for _, _, s in pending.values()}.values())
+                for ref, (lo, hi, s) in list(pending.items()):
+                    if any(s is d for d in dead):
+                        del pending[ref]
+                        lost_slices.append((lo, hi))
+                lost += dead
+            if lost_slices:
+                self._drop(lost)
+                survivors = list(self._shards)
+                if not survivors:
+                    self.refresh()
+                    survivors = list(self._shards)
+                if not survivors:
+                    raise RuntimeError("every node running shards was lost and no alive node "
+                                       "has a CPU for a new one")
+                for lo, hi in lost_slices:
+                    submit(lo, hi, survivors)
+                    reruns += 1
+        self.timings["ray_s"] += time.perf_counter() - t0
+        return [parts[lo] for lo in sorted(parts)], reruns
 
     def close(self) -> None:
         if self._local is not None:
             self._local.close()
             return
-        import ray
-
-        for a in self.actors:
-            ray.kill(a)
-        self.actors = []
+        self._drop(list(self._shards))

@@ -20,6 +20,49 @@ def reality_for(config: RunConfig, session: Session) -> SimulatedReality:
     return SimulatedReality(config.domain, {"n_blocks": config.n_blocks}, truth)
 
 
+class NodeTally:
+    """Particle-actions per Ray node over a run; kept in the checkpoint, so that a resumed
+    run goes on counting where the interrupted one stopped."""
+
+    def __init__(self, nodes: list[dict] | None = None, reruns: int = 0) -> None:
+        self.by_node = {n["node_id"]: {"hostname": n["hostname"],
+                                       "particle_actions": int(n["particle_actions"])}
+                        for n in nodes or []}
+        self.reruns = reruns
+
+    def add(self, out: dict) -> None:
+        for node_id, d in out.get("nodes", {}).items():
+            e = self.by_node.setdefault(node_id, {"hostname": d["hostname"], "particle_actions": 0})
+            e["particle_actions"] += d["particle_actions"]
+        self.reruns += int(out.get("reruns", 0))
+
+    def report(self, shards: list[dict]) -> list[dict]:
+        """One row per node that holds a shard or ran particles: node_id, hostname, shards
+        (at the start of this run), particle_actions (over the whole task)."""
+        per_node = {}
+        for s in shards:
+            row = per_node.setdefault(s["node_id"], {"node_id": s["node_id"], "hostname": s["hostname"],
+                                                     "shards": 0, "particle_actions": 0})
+            row["shards"] += 1
+        for node_id, d in self.by_node.items():
+            row = per_node.setdefault(node_id, {"node_id": node_id, "hostname": d["hostname"],
+                                                "shards": 0, "particle_actions": 0})
+            row["particle_actions"] = d["particle_actions"]
+        return [per_node[k] for k in sorted(per_node)]
+
+
+class _Tallied:
+    """The pool as the session sees it: every simulate() is counted per node."""
+
+    def __init__(self, pool: ShardPool, tally: NodeTally) -> None:
+        self.pool, self.tally = pool, tally
+
+    def simulate(self, *args, **kwargs) -> dict:
+        out = self.pool.simulate(*args, **kwargs)
+        self.tally.add(out)
+        return out
+
+
 def run(config: RunConfig, *, ray_address: str | None = None,
         on_episode: Callable[[dict, Session, dict], None] | None = None,
         resume: dict | None = None, should_stop: Callable[[], bool] | None = None,
@@ -32,15 +75,20 @@ def run(config: RunConfig, *, ray_address: str | None = None,
     episodes. `pool` lets a long-lived service share one shard pool between tasks.
     `kill_shard_at` (tests only): kill shard 0 right before that episode, to check that Ray
     restarts it and the run ends with identical results.
+
+    ``runtime.nodes`` of the result lists the Ray nodes that ran particles (node_id,
+    hostname, shards, particle_actions); the checkpoint carries them as ``nodes``.
     """
     t0 = time.perf_counter()
     own_pool = pool is None
     session = Session.from_checkpoint(resume["session"]) if resume else Session(config)
+    tally = NodeTally(resume.get("nodes") if resume else None,
+                      resume.get("reruns", 0) if resume else 0)
     if session.agent.learn_belief:
         if pool is None:
             init_ray(ray_address)
             pool = ShardPool(config.domain, {"n_blocks": config.n_blocks}, config.shards)
-        session.pool = pool
+        session.pool = _Tallied(pool, tally)
     else:
         pool, own_pool = None, False
     reality = reality_for(config, session)
@@ -49,6 +97,7 @@ def run(config: RunConfig, *, ray_address: str | None = None,
     if resume:
         reality_rng.bit_generator.state = resume["reality_rng"]
     nodes: list[dict] = []
+    ray_s0 = pool.timings["ray_s"] if pool is not None else 0.0
     try:
         nodes = pool.nodes() if pool is not None else []
         for e in range(session.episode, config.episodes):
@@ -60,17 +109,19 @@ def run(config: RunConfig, *, ray_address: str | None = None,
             record = session.run_episode(reality, reality_rng)
             if on_episode is not None:
                 on_episode(record, session, {"session": session.to_checkpoint(),
-                                             "reality_rng": reality_rng.bit_generator.state})
+                                             "reality_rng": reality_rng.bit_generator.state,
+                                             "nodes": tally.report(nodes),
+                                             "reruns": tally.reruns})
     finally:
         reality.close()
-        ray_s = pool.timings["ray_s"] if pool is not None else 0.0
+        ray_s = pool.timings["ray_s"] - ray_s0 if pool is not None else 0.0
         if own_pool and pool is not None:
             pool.close()
-    return result_record(config, session, nodes, time.perf_counter() - t0, ray_s)
+    return result_record(config, session, nodes, time.perf_counter() - t0, ray_s, tally)
 
 
 def result_record(config: RunConfig, session: Session, nodes: list[dict], wall_s: float,
-                  ray_s: float) -> dict:
+                  ray_s: float, tally: NodeTally | None = None) -> dict:
     episodes = session.episodes
     utilities = [e["utility"] for e in episodes]
     post = session.posterior()
@@ -87,7 +138,8 @@ def result_record(config: RunConfig, session: Session, nodes: list[dict], wall_s
         },
         "runtime": {
             "shards": len(nodes),
-            "nodes": sorted({n["node_id"] for n in nodes}),
+            "nodes": (tally or NodeTally()).report(nodes),
+            "reruns": tally.reruns if tally is not None else 0,
             "particle_actions": session.particle_actions,
             "particle_steps": session.particle_steps,
             "wall_s": wall_s,

@@ -16,7 +16,7 @@ import numpy as np
 
 from planner import symbolic
 from planner import task_planner
-from planner.motion import Bounds, MotionPlanningError, box_checker, plan_transit
+from planner.motion import Bounds, MotionPlanningError, box_checker, plan_approach, plan_transit
 from sim_workers.configuration import Configuration
 from sim_workers.domains import load
 
@@ -56,6 +56,7 @@ class EpisodeStats:
     physics_s: float = 0.0
     planning_s: float = 0.0
     real_s: float = 0.0
+    transit_fallbacks: list = field(default_factory=list)
 
 
 class Session:
@@ -149,19 +150,34 @@ class Session:
         return self.domain.action_pose(self._props(self.believed_sizes()), config, action), None
 
     def _transit(self, config: Configuration, pre: np.ndarray) -> np.ndarray | None:
-        """RRT* (or its straight shortcut) to the pre-pose among the observed obstacles."""
+        """A collision-free path to the pre-pose among the observed obstacles.
+
+        Tried in order: the straight segment; up, across at a safe height and down (what
+        a pick-and-place robot does, checked segment by segment); OMPL RRT*. None: all
+        failed, and the action uses the default transit (as a real robot would refuse to).
+        """
         t0 = time.perf_counter()
         try:
             size = float(np.max(self.believed_sizes()))
-            checker = box_checker(self.domain.obstacles(config, size),
-                                  gripper_half_extents=(0.02, 0.06, 0.03))
-            start = config.robot[:4].copy()
-            start[2] = max(start[2], self.domain.spec.carry_height)
-            path = plan_transit(start, pre[:4], checker, WORKSPACE,
-                                seed=int(self.rng.integers(2**31)), iterations=200)
-            return np.vstack([config.robot[:4], path])
-        except MotionPlanningError:
-            return None           # the default up-across-down transit is always safe
+            held = size if any(a.startswith("is_holding(") for a in self.state) else 0.0
+            half, dz = self.domain.gripper_box(held)
+            boxes = box_checker(self.domain.obstacles(config, size), gripper_half_extents=half)
+            offset = np.array([0.0, 0.0, dz, 0.0])
+            checker = lambda q: boxes(np.asarray(q) + offset)   # noqa: E731  (box from the tips up)
+            start = config.robot[:4]
+            for waypoints in ([start, pre[:4]], self.domain.default_transit(config.robot, pre)[:, :4]):
+                try:
+                    for a, b in zip(waypoints[:-1], waypoints[1:]):
+                        plan_approach(a, b, checker)        # every segment checked densely
+                    return np.array(waypoints, dtype=np.float64)   # straight segments: ends suffice
+                except MotionPlanningError:
+                    continue
+            # 200 RRT* iterations, at most 600 to find a first path (~0.5 s).
+            return plan_transit(start, pre[:4], checker, WORKSPACE, seed=int(self.rng.integers(2**31)),
+                                iterations=200, max_iterations=600, shortcut=False, resolution=0.05)
+        except MotionPlanningError as exc:
+            self.stats.transit_fallbacks.append(str(exc)[:200])
+            return None
         finally:
             self.stats.planning_s += time.perf_counter() - t0
 

@@ -65,8 +65,10 @@ def loaded_configuration(domain, sizes: np.ndarray, load_k: int, rng: np.random.
     for i in range(load_k):
         s = sizes[i]
         lx = (1 if i % 2 else -1) * (s / 2 + spec.slot_gap / 2)
+        # Heights only order the pile (place() re-stacks each column from the floor).
+        z = spec.floor_top + (i // 2 + 0.5) * s
         objects[1 + i, :3] = [c[0] + lx + rng.normal(0, PLACEMENT_JITTER_M / 2),
-                              c[1] + rng.normal(0, PLACEMENT_JITTER_M / 2), 0.1 + i]
+                              c[1] + rng.normal(0, PLACEMENT_JITTER_M / 2), z]
         objects[1 + i, 3:] = quat_from_yaw(rng.uniform(-YAW_JITTER_RAD, YAW_JITTER_RAD))
     return domain.place(Configuration(config.robot, objects), {"block_sizes": sizes})
 

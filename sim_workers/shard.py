@@ -72,16 +72,28 @@ class Shard:
         return {"configurations": np.array(configs), "states": np.array(states, dtype=object),
                 "measurements": np.array(meas), "steps": np.array(steps, dtype=np.int64)}
 
-    def node(self) -> dict:
-        """Where this shard runs and what it costs in memory (RSS in MB)."""
-        rss_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+    def simulate_batch(self, start: np.ndarray, sizes: np.ndarray, action: str,
+                       trajectory: np.ndarray, start_time=0.0) -> dict:
+        """``simulate`` plus where it ran (key ``node``: node_id, hostname, pid): the one
+        remote call a pool makes per shard per action, so that it can tell which node
+        simulated which particles even after Ray restarted this actor elsewhere."""
+        out = self.simulate(start, sizes, action, trajectory, start_time)
+        out["node"] = self.where()
+        return out
+
+    def where(self) -> dict:
+        """The Ray node (``local`` outside Ray), host name and process of this shard."""
         try:
             import ray
             node_id = ray.get_runtime_context().get_node_id() if ray.is_initialized() else "local"
         except Exception:  # pragma: no cover - ray absent in a plain process
             node_id = "local"
-        return {"pid": os.getpid(), "node_id": node_id, "hostname": os.uname().nodename,
-                "rss_mb": rss_mb, "worlds": len(self.worlds)}
+        return {"node_id": node_id, "hostname": os.uname().nodename, "pid": os.getpid()}
+
+    def node(self) -> dict:
+        """Where this shard runs and what it costs in memory (RSS in MB)."""
+        rss_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+        return {**self.where(), "rss_mb": rss_mb, "worlds": len(self.worlds)}
 
     def close(self) -> None:
         for w in self.worlds:
@@ -89,7 +101,11 @@ class Shard:
 
 
 def remote_shard(num_cpus: float = 1.0):
-    """The Ray actor class: restarted by Ray when its process dies, its task retried."""
+    """The Ray actor class: restarted by Ray when its process dies, its task retried.
+
+    When a whole node is lost, a restart may find no room on the surviving nodes (they
+    already run their own shards); ``coordinator.fanout.ShardPool`` then drops that node's
+    shards and re-runs their batches on the survivors instead of waiting for a restart."""
     import ray
 
     return ray.remote(num_cpus=num_cpus, max_restarts=-1, max_task_retries=-1)(Shard)

@@ -93,6 +93,18 @@ class ContainerDomain:
                          transit: np.ndarray | None = None) -> float:
         return trajectories.transit_end_time(self.spec, config, action, key, transit)
 
+    def gripper_box(self, held_size: float = 0.0) -> tuple[np.ndarray, float]:
+        """(half extents, z offset of its centre above the fingertips) of a box around the
+        gripper: fingers at their widest and the palm, plus a held block hanging below."""
+        fx, fy, fz = self.spec.finger_half
+        top = self.spec.palm_offset + self.spec.palm_half[2]
+        half = np.array([fx + 0.001, self.spec.max_opening / 2 + 2 * fy, (top + held_size) / 2])
+        return half, (top - held_size) / 2
+
+    def default_transit(self, start: np.ndarray, pre: np.ndarray) -> np.ndarray:
+        """Up, across at a safe height, down: (M, 5) waypoints."""
+        return trajectories.default_transit(self.spec, start, pre)
+
     def obstacles(self, config: Configuration, size: float) -> list[tuple[np.ndarray, np.ndarray]]:
         """Axis-aligned boxes (centre, half extents) around the container and every block
         not in the hand, for the motion planner's geometric collision check."""
@@ -104,7 +116,8 @@ class ContainerDomain:
         for i, label in enumerate(labels):
             if label not in (state_mapping.HELD, state_mapping.GOAL):
                 p = config.objects[1 + i, :3]
-                boxes.append((p.copy(), np.full(3, 0.75 * size)))
+                # s / sqrt(2) in x and y holds a cube of side s at any yaw.
+                boxes.append((p.copy(), np.array([0.71 * size, 0.71 * size, 0.5 * size])))
         return boxes
 
     def pre_pose(self, config: Configuration, action: str, key: np.ndarray) -> np.ndarray:
