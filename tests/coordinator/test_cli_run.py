@@ -1,0 +1,49 @@
+"""`tmoc run`: bad arguments exit 2 naming the flag; a tiny real run writes its files."""
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from coordinator.cli import main
+
+
+@pytest.mark.parametrize("args, flag", [
+    (["--particles", "0"], "--particles"),
+    (["--episodes", "-1"], "--episodes"),
+    (["--agent", "oracle"], "--agent"),
+    (["--likelihood", "guess"], "--likelihood"),
+    (["--true-size", "0.5"], "--true-size"),
+    (["--domain", "kitchen"], "--domain"),
+    (["--max-steps", "0"], "--max-steps"),
+])
+def test_bad_arguments_exit_2_naming_the_flag(args, flag, capsys, tmp_path):
+    assert main(["run", "--out", str(tmp_path), *args]) == 2
+    err = capsys.readouterr().err
+    assert flag in err and "Traceback" not in err
+    assert not (tmp_path / "result.json").exists()
+
+
+def test_non_numeric_particles_is_an_argparse_error(capsys):
+    with pytest.raises(SystemExit) as exc:
+        main(["run", "--particles", "many"])
+    assert exc.value.code == 2 and "--particles" in capsys.readouterr().err
+
+
+def test_a_tiny_run_writes_result_json_and_curve_png(ray_cluster, tmp_path, capsys):
+    code = main(["run", "--particles", "4", "--episodes", "2", "--max-steps", "3", "--seed", "2",
+                 "--out", str(tmp_path), "--no-progress"])
+    assert code == 0
+    result = json.loads((tmp_path / "result.json").read_text())
+    assert set(result) >= {"config", "episodes", "summary", "runtime"}
+    assert len(result["episodes"]) == 2
+    for e in result["episodes"]:
+        assert set(e) >= {"utility", "actions", "failures", "loads", "delivered", "posterior", "ess", "wall_s"}
+        assert e["actions"] == 3 and set(e["posterior"]) >= {"size_mean", "size_std"}
+    assert set(result["summary"]) >= {"mean_utility", "final_size_mean", "final_size_std", "transition"}
+    assert len(result["summary"]["transition"]["push"]) == 8
+    assert set(result["runtime"]) >= {"shards", "nodes", "particle_actions", "wall_s"}
+    assert result["runtime"]["particle_actions"] == 4 * 2 * 3
+    png = (tmp_path / "curve.png").read_bytes()
+    assert png[:8] == b"\x89PNG\r\n\x1a\n" and len(png) > 10_000
+    assert json.loads(capsys.readouterr().out)["result"].endswith("result.json")
