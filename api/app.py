@@ -211,12 +211,25 @@ def _task_links(task_id: str) -> dict[str, str]:
             "belief": f"{base}/belief", "curve": f"{base}/curve", "curve_png": f"{base}/curve.png"}
 
 
-def task_view(row: dict) -> dict:
+def task_nodes(row: dict, live: list[dict] | None = None) -> list[dict] | None:
+    """The Ray nodes that ran a task's particles: the result's when it succeeded, else what
+    the worker reported at the running task's last episode boundary."""
+    runtime = (row.get("result") or {}).get("runtime") or {}
+    nodes = runtime.get("nodes", live)
+    if nodes is None:
+        return None
+    # Results stored by earlier versions list bare node ids.
+    return [n if isinstance(n, dict) else {"node_id": str(n), "hostname": "", "shards": 0,
+                                           "particle_actions": 0} for n in nodes]
+
+
+def task_view(row: dict, live_nodes: list[dict] | None = None) -> dict:
     return {
         "id": row["id"], "status": row["status"], "spec": row["spec"],
         "progress": {"episodes_done": row["episodes_done"], "episodes": row["episodes"]},
         "latest": row.get("latest"), "cancel_requested": bool(row["cancel_requested"]),
         "attempts": row["attempts"], "error": row.get("error"), "result": row.get("result"),
+        "nodes": task_nodes(row, live_nodes),
         "created_at": S.ts(row["created_at"]), "started_at": S.ts(row.get("started_at")),
         "finished_at": S.ts(row.get("finished_at")), "links": _task_links(row["id"]),
     }
@@ -386,6 +399,11 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     TaskId = Annotated[str, Path(min_length=1, max_length=64, description="task id (t_...)")]
     SessionId = Annotated[str, Path(min_length=1, max_length=64, description="session id (s_...)")]
 
+    def task_json(row: dict) -> dict:
+        """A task as the API shows it (with the live node report while it runs)."""
+        worker = store_box.get("worker")
+        return task_view(row, worker.nodes_of(row["id"]) if worker is not None else None)
+
     def task_or_404(task_id: str, **kw) -> dict:
         row = store().get_task(task_id, **kw)
         if row is None:
@@ -424,13 +442,13 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         """Tasks, newest first."""
         rows, total = store().list_tasks(limit, offset, status)
         nxt = offset + len(rows) if offset + len(rows) < total else None
-        return {"items": [task_view(r) for r in rows], "total": total, "limit": limit,
+        return {"items": [task_json(r) for r in rows], "total": total, "limit": limit,
                 "offset": offset, "next_offset": nxt}
 
     @v1.get("/tasks/{task_id}", response_model=S.TaskView, tags=["tasks"], responses=_err(404))
     async def get_task(task_id: TaskId):
         """Status, progress, the latest episode's metrics, and the result when done."""
-        return task_view(task_or_404(task_id))
+        return task_json(task_or_404(task_id))
 
     @v1.delete("/tasks/{task_id}", response_model=S.CancelView, tags=["tasks"],
                responses={**_err(404, 409), 202: {"model": S.CancelView}})
@@ -448,7 +466,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             detail = "cancel requested: the task stops at its next episode boundary"
         else:
             detail = "cancelled"
-        return {**task_view(task_or_404(task_id)), "detail": detail}
+        return {**task_json(task_or_404(task_id)), "detail": detail}
 
     @v1.get("/tasks/{task_id}/episodes", tags=["tasks"], responses=_err(404),
             response_model=list[dict[str, Any]])
@@ -500,7 +518,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
                         yield f"id: {episode}\nevent: episode\ndata: {record}\n\n"
                         last = episode
                     if status != last_status:
-                        view = json.dumps(jsonable_encoder(task_view(st.get_task(task_id))),
+                        view = json.dumps(jsonable_encoder(task_json(st.get_task(task_id))),
                                           separators=(",", ":"))
                         yield f"event: status\ndata: {view}\n\n"
                         last_status = status

@@ -153,6 +153,13 @@ class Progress(BaseModel):
     episodes: int
 
 
+class NodeRun(BaseModel):
+    node_id: str = Field(description="Ray node id")
+    hostname: str
+    shards: int = Field(description="this task's shard actors on the node (at the start of its run)")
+    particle_actions: int = Field(description="particle-actions the node simulated for this task")
+
+
 class TaskView(BaseModel):
     id: str
     status: TaskStatus
@@ -163,6 +170,9 @@ class TaskView(BaseModel):
     attempts: int = Field(description="how many times the worker started it (restarts resume)")
     error: str | None
     result: dict[str, Any] | None = Field(None, description="summary and runtime when succeeded")
+    nodes: list[NodeRun] | None = Field(
+        None, description="the Ray nodes that ran this task's particles: the result's "
+                          "runtime.nodes when it succeeded; while it runs, as of its last episode")
     created_at: datetime
     started_at: datetime | None
     finished_at: datetime | None

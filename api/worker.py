@@ -98,7 +98,8 @@ class PoolManager:
                     del self._users[victim], self._last_used[victim]
                 else:
                     self._cond.wait(timeout=1.0)
-            if key not in self._pools:
+            fresh = key not in self._pools
+            if fresh:
                 from coordinator.fanout import ShardPool
 
                 self._pools[key] = ShardPool(domain, {"n_blocks": int(n_blocks)}, self.n_shards,
@@ -106,7 +107,19 @@ class PoolManager:
                 self._users[key] = 0
             self._users[key] += 1
             self._last_used[key] = time.monotonic()
-            return self._pools[key]
+            pool = self._pools[key]
+        if not fresh:
+            # Nodes may have joined (or left) since this pool was planned: each task (and
+            # session step) starts with one shard per CPU of the cluster as it is now.
+            try:
+                added = pool.refresh()
+            except Exception:
+                self.release(domain, n_blocks)
+                raise
+            if added:
+                log.info("pool %s: %d shards added (cluster grew), %d in all", key, added,
+                         len(pool.actors))
+        return pool
 
     def release(self, domain: str, n_blocks: int) -> None:
         key = (domain, int(n_blocks))
@@ -184,6 +197,11 @@ class TaskWorker:
         self._stopping = threading.Event()
         self._thread: threading.Thread | None = None
         self.current: str | None = None
+        self._nodes: dict[str, list[dict]] = {}   # running task -> nodes that ran its particles
+
+    def nodes_of(self, task_id: str) -> list[dict] | None:
+        """The Ray nodes that ran a running task's particles so far (as of its last episode)."""
+        return self._nodes.get(task_id)
 
     def start(self) -> None:
         self._thread = threading.Thread(target=self._loop, name="tmoc-task-worker", daemon=True)
@@ -223,6 +241,7 @@ class TaskWorker:
                     self.store.finish_task(task_id, "failed", error=f"internal error: {exc!r}")
             finally:
                 self.current = None
+                self._nodes.pop(task_id, None)        # stored with the result by now
                 self.notifier.notify(task_id)
 
     def _run(self, task_id: str) -> None:
@@ -247,6 +266,7 @@ class TaskWorker:
         def on_episode(record: dict, session, checkpoint: dict) -> None:
             belief = session.belief.summary() if session.belief is not None else None
             self.store.record_episode(task_id, record, checkpoint, belief)
+            self._nodes[task_id] = checkpoint.get("nodes", [])
             self.notifier.notify(task_id)
 
         def should_stop() -> bool:
