@@ -1,0 +1,136 @@
+"""`tmoc experiment NAME`: one of the paper's simulation experiments, runs in parallel on Ray,
+resumable, writing DIR/NAME.png, DIR/NAME.csv and DIR/NAME.json."""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+from pydantic import ValidationError
+
+from ..cli import UsageError
+
+_FLAGS = {"particles": "--particles", "episodes": "--episodes", "seed": "--seed",
+          "max_steps": "--max-steps", "true_size": "--true-size"}
+
+
+def register(sub) -> None:
+    from ..experiments import DEFAULT_PROBE_TRIALS, DEFAULT_SCALE, EXPERIMENTS, PAPER_SCALE
+
+    defaults = "; ".join(f"{n}: {d['runs']} runs x {d['episodes']} episodes, N {d['particles']}"
+                         for n, d in DEFAULT_SCALE.items())
+    p = sub.add_parser(
+        "experiment", help="reproduce a paper experiment: " + " | ".join(EXPERIMENTS),
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        description=("Runs every setting of the experiment `runs` times (seeded, independent, one "
+                     "Ray task and one CPU per run), keeps finished runs in DIR/runs/ and writes "
+                     "DIR/NAME.png, DIR/NAME.csv and DIR/NAME.json.\n\n"
+                     f"Default scale (each < 30 min on 2 cores): {defaults}.\n"
+                     f"--scale paper: {PAPER_SCALE['runs']} runs x {PAPER_SCALE['episodes']} "
+                     f"episodes, N {PAPER_SCALE['particles']}. Explicit flags win over either."))
+    p.add_argument("name", metavar="NAME", help=" | ".join(EXPERIMENTS))
+    p.add_argument("--runs", type=int, default=None, help="independent runs per setting")
+    p.add_argument("--episodes", type=int, default=None, help="episodes per run")
+    p.add_argument("--particles", type=int, default=None,
+                   help="particles N (`particles`: the largest N; the settings are N/4, N/2, 3N/4, N)")
+    p.add_argument("--seed", type=int, default=0, help="experiment seed S (run seeds derive from it)")
+    p.add_argument("--scale", default="default", help="default | paper")
+    p.add_argument("--max-steps", type=int, default=60, help="action limit per episode")
+    p.add_argument("--true-size", type=float, default=0.045, help="hidden block size (m)")
+    p.add_argument("--milestones", default=None,
+                   help="`milestones`: comma-separated episodes (default: 5 evenly spaced)")
+    p.add_argument("--probe-trials", type=int, default=DEFAULT_PROBE_TRIALS,
+                   help="seeded trials per probe when estimating the true T (cached in DIR/true_T.json)")
+    p.add_argument("--probe-seed", type=int, default=0, help="seed of the T* probes")
+    p.add_argument("--checkpoint-s", type=float, default=60.0,
+                   help="seconds between a running run's checkpoints (kept for --resume)")
+    p.add_argument("--ray-address", default=None, help="join a running Ray cluster")
+    p.add_argument("--out", default="runs/experiments", help="output directory DIR")
+    p.add_argument("--resume", action="store_true", help="reuse the finished runs in DIR/runs")
+    p.add_argument("--no-progress", action="store_true")
+    p.set_defaults(func=main)
+
+
+def _int_at_least(value, flag: str, low: int, high: int | None = None) -> int:
+    if value < low or (high is not None and value > high):
+        rng = f">= {low}" if high is None else f"in [{low}, {high}]"
+        raise UsageError(f"{flag}: must be {rng} (got {value})")
+    return value
+
+
+def spec_from_args(args):
+    from .. import experiments as ex
+
+    if args.name not in ex.EXPERIMENTS:
+        raise UsageError(f"NAME: unknown experiment {args.name!r} (known: {', '.join(ex.EXPERIMENTS)})")
+    if args.scale not in ("default", "paper"):
+        raise UsageError(f"--scale: must be default or paper (got {args.scale!r})")
+    base = ex.PAPER_SCALE if args.scale == "paper" else ex.DEFAULT_SCALE[args.name]
+    runs = _int_at_least(args.runs if args.runs is not None else base["runs"], "--runs", 1, 10000)
+    episodes = args.episodes if args.episodes is not None else base["episodes"]
+    particles = args.particles if args.particles is not None else base["particles"]
+    _int_at_least(episodes, "--episodes", 1)
+    _int_at_least(particles, "--particles", 1)
+    _int_at_least(args.seed, "--seed", 0)
+    _int_at_least(args.probe_trials, "--probe-trials", 1, 100000)
+    _int_at_least(args.probe_seed, "--probe-seed", 0)
+    if not args.checkpoint_s > 0:
+        raise UsageError(f"--checkpoint-s: must be > 0 (got {args.checkpoint_s})")
+    if args.milestones is None:
+        milestones = ex.default_milestones(episodes)
+    else:
+        try:
+            milestones = tuple(sorted({int(v) for v in args.milestones.split(",") if v.strip()}))
+        except ValueError:
+            raise UsageError(f"--milestones: expected comma-separated episodes "
+                             f"(got {args.milestones!r})") from None
+        if not milestones or milestones[0] < 1 or milestones[-1] > episodes:
+            raise UsageError(f"--milestones: episodes must lie in [1, --episodes={episodes}] "
+                             f"(got {args.milestones!r})")
+    spec = ex.Spec(name=args.name, runs=runs, episodes=episodes, particles=particles, seed=args.seed,
+                   max_steps=args.max_steps, true_size=args.true_size, milestones=milestones,
+                   probe_trials=args.probe_trials, probe_seed=args.probe_seed, scale=args.scale,
+                   settings=ex.settings_for(args.name, particles))
+    try:       # every run's config must validate before anything starts
+        for k in range(len(spec.settings)):
+            ex.run_config(spec, k, 0)
+    except ValidationError as exc:
+        err = exc.errors()[0]
+        field = str(err["loc"][0])
+        raise UsageError(f"{_FLAGS.get(field, '--' + field.replace('_', '-'))}: {err['msg']} "
+                         f"(got {err.get('input')!r})") from None
+    return spec
+
+
+def main(args) -> int:
+    from .. import experiments as ex
+
+    spec = spec_from_args(args)
+    out = Path(args.out)
+    if not args.resume:
+        found = ex.existing_runs(out, spec)
+        if found:
+            raise UsageError(f"--resume: {out} already holds {len(found)} run files of "
+                             f"`{spec.name}` (e.g. {found[0]}); pass --resume to reuse them, "
+                             "or choose another --out")
+    from ..fanout import init_ray
+
+    init_ray(args.ray_address)
+    try:
+        done = ex.execute(spec, out, resume=args.resume, progress=not args.no_progress,
+                          checkpoint_s=args.checkpoint_s)
+    except ex.ResumeError as exc:
+        raise UsageError(f"--resume: {exc}; choose another --out") from None
+    except KeyboardInterrupt:
+        print(f"tmoc experiment: interrupted; finished runs (and checkpoints of running ones) "
+              f"are kept in {out / 'runs'}: continue with the same command plus --resume",
+              file=sys.stderr)
+        return 130
+    summary = json.loads(Path(done["json"]).read_text())
+    print(json.dumps({**done, "settings": {
+        k: {key: v[key] for key in ("mean_utility_last_fifth", "episodes_to_converge",
+                                    "final_posterior_error_mm", "optimal_plans_pct_last_fifth",
+                                    "successful_actions_pct_last_fifth")}
+        for k, v in summary["settings"].items()}}, indent=2))
+    return 0

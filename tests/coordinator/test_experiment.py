@@ -1,0 +1,204 @@
+"""`tmoc experiment`: every experiment at a tiny scale writes its files with the right shapes;
+--resume reuses finished runs; the same seed gives the same CSV; T* is estimated once."""
+from __future__ import annotations
+
+import csv
+import json
+import os
+import shutil
+
+import numpy as np
+import pytest
+
+from coordinator import experiments as ex
+from coordinator.cli import main
+
+TINY = ["--runs", "2", "--episodes", "2", "--particles", "4", "--max-steps", "3",
+        "--probe-trials", "1", "--no-progress"]
+SUMMARY_KEYS = {"mean_utility_last_fifth", "episodes_to_converge", "final_posterior_error",
+                "optimal_plans_pct_last_fifth", "successful_actions_pct_last_fifth"}
+
+
+def _csv(path):
+    with open(path, newline="") as f:
+        return list(csv.DictReader(f))
+
+
+@pytest.mark.parametrize("args, flag", [
+    (["compare", "--runs", "0"], "--runs"),
+    (["compare", "--episodes", "0"], "--episodes"),
+    (["particles", "--particles", "0"], "--particles"),
+    (["compare", "--seed", "-1"], "--seed"),
+    (["compare", "--max-steps", "0"], "--max-steps"),
+    (["compare", "--true-size", "0.5"], "--true-size"),
+    (["compare", "--scale", "huge"], "--scale"),
+    (["milestones", "--episodes", "4", "--milestones", "2,9"], "--milestones"),
+    (["milestones", "--milestones", "x"], "--milestones"),
+    (["compare", "--probe-trials", "0"], "--probe-trials"),
+    (["figure9"], "NAME"),
+])
+def test_bad_arguments_exit_2_naming_the_flag(args, flag, capsys, tmp_path):
+    assert main(["experiment", *args, "--out", str(tmp_path)]) == 2
+    err = capsys.readouterr().err
+    assert flag in err and "Traceback" not in err
+    assert not list(tmp_path.iterdir())
+
+
+def test_scales_and_seeds():
+    assert ex.particle_counts(200) == [50, 100, 150, 200]
+    assert ex.particle_counts(4) == [1, 2, 3, 4]
+    assert ex.default_milestones(50) == (10, 20, 30, 40, 50)
+    seeds = {ex.run_seed(7, x, k, r) for x in range(5) for k in range(4) for r in range(15)}
+    assert len(seeds) == 300 and all(0 <= s < 2**63 for s in seeds)
+    assert ex.run_seed(7, 0, 1, 2) == ex.run_seed(7, 0, 1, 2) != ex.run_seed(8, 0, 1, 2)
+
+
+def test_scale_presets_and_explicit_flags():
+    from coordinator.cli import build_parser
+    from coordinator.commands.experiment import spec_from_args
+
+    parse = lambda *a: spec_from_args(build_parser().parse_args(["experiment", *a]))
+    paper = parse("particles", "--scale", "paper")
+    assert (paper.runs, paper.episodes, paper.particles) == (15, 5000, 200)
+    assert [s.overrides["particles"] for s in paper.settings] == [50, 100, 150, 200]
+    mixed = parse("compare", "--scale", "paper", "--runs", "2")
+    assert (mixed.runs, mixed.episodes) == (2, 5000)
+    default = parse("milestones")
+    assert (default.runs, default.episodes, default.particles) == \
+        tuple(ex.DEFAULT_SCALE["milestones"][k] for k in ("runs", "episodes", "particles"))
+    assert default.milestones == ex.default_milestones(default.episodes)
+
+
+def test_convergence_episode():
+    curve = [-200.0, -50.0, 80.0, 100.0, 104.0, 101.0, 99.0, 100.0, 100.0, 100.0]
+    episode, final, window = ex.convergence_episode(np.array(curve))
+    assert (episode, final, window) == (4, 100.0, 1)
+
+
+def test_true_T_is_estimated_once_and_cached(tmp_path):
+    calls = []
+
+    def fake_probes(params):
+        calls.append(params)
+        jobs = ex.probe_jobs(params["n_blocks"])
+        # pickup always; stacks reach height 6 of 8 in 3 of 4 trials; pushes fail from 6 up.
+        return [{("pickup", 1): 4}.get((a, k), 4 if a == "push" and k < 6 else 0 if a == "push"
+                                       else (4 if k < 6 else 3)) for a, k in jobs]
+
+    params = {"true_size": 0.045, "n_blocks": 8, "trials": 4, "seed": 0}
+    rec, cached = ex.true_transition(tmp_path, params, executor=fake_probes)
+    assert not cached and len(calls) == 1
+    assert rec["transition"]["stack"] == [1, 1, 1, 1, 1, 0.75, 1, 1]
+    assert rec["transition"]["push"] == [1, 1, 1, 1, 1, 0, 0, 0]
+    again, cached = ex.true_transition(tmp_path, params, executor=fake_probes)
+    assert cached and len(calls) == 1 and again == rec
+    opt = ex.Optimality(rec["transition"], None, 8)
+    assert sorted(opt.best_loads) in ([3, 5], [4, 4]) and opt([5, 3]) and not opt([8])
+    # Other probe settings are not the cached ones: estimated anew.
+    ex.true_transition(tmp_path, {**params, "trials": 5}, executor=fake_probes)
+    assert len(calls) == 2
+
+
+@pytest.fixture(scope="module")
+def tiny_out(ray_cluster, tmp_path_factory):
+    """Every experiment at a tiny scale into one DIR (they share the cached T*)."""
+    out = tmp_path_factory.mktemp("experiments")
+    for name in ex.EXPERIMENTS:
+        assert main(["experiment", name, *TINY, "--seed", "3", "--out", str(out)]) == 0
+    return out
+
+
+@pytest.mark.parametrize("name", ex.EXPERIMENTS)
+def test_every_experiment_writes_png_csv_json(tiny_out, name):
+    summary = json.loads((tiny_out / f"{name}.json").read_text())
+    settings = summary["settings"]
+    n_settings = {"compare": 4, "particles": 4, "milestones": 1, "sizes": 2, "likelihood": 2}[name]
+    assert len(settings) == n_settings
+    for s in settings.values():
+        assert set(s) >= SUMMARY_KEYS
+        assert s["final_posterior_error"] >= 0 and 0 <= s["successful_actions_pct_last_fifth"] <= 100
+    rows = _csv(tiny_out / f"{name}.csv")
+    assert tuple(rows[0]) == ex.CSV_COLUMNS
+    assert len(rows) == 2 * n_settings * 2                # runs x settings x episodes
+    assert {(r["setting"], r["run"], r["episode"]) for r in rows} == \
+        {(label, str(r), str(e)) for label in settings for r in range(2) for e in (1, 2)}
+    for r in rows:
+        assert int(r["actions"]) == 3 and float(r["size_mean"]) > 0
+        assert r["optimal_plan"] in ("0", "1", "")
+    png = (tiny_out / f"{name}.png").read_bytes()
+    assert png[:8] == b"\x89PNG\r\n\x1a\n" and len(png) > 10_000
+    if name == "compare":
+        assert [s["agent"] for s in settings.values()] == ["tmoc", "tmp_rl", "gp", "toep"]
+    if name == "particles":
+        assert [s["particles"] for s in settings.values()] == [1, 2, 3, 4]
+    if name == "milestones":
+        assert [m["episode"] for m in summary["milestones"]] == [1, 2]
+        assert all(m["optimal_plans_pct"] is not None for m in summary["milestones"])
+    if name == "sizes":                                   # T* is for equal blocks only
+        assert {r["optimal_plan"] for r in rows if r["setting"] != "equal"} == {""}
+
+
+def test_resume_reuses_finished_runs_and_reproduces_the_csv(tiny_out, capsys):
+    csv_before = (tiny_out / "likelihood.csv").read_text()
+    files = sorted((tiny_out / "runs").glob("likelihood-*/*.json"))
+    assert len(files) == 4
+    t_star = tiny_out / "true_T.json"
+    stamps = {p: os.stat(p).st_mtime_ns for p in [*files, t_star]}
+    files[1].unlink()
+    # Without --resume an experiment refuses to overwrite finished runs.
+    assert main(["experiment", "likelihood", *TINY, "--seed", "3", "--out", str(tiny_out)]) == 2
+    assert "--resume" in capsys.readouterr().err
+    capsys.readouterr()
+    assert main(["experiment", "likelihood", *TINY, "--seed", "3", "--out", str(tiny_out),
+                 "--resume"]) == 0
+    report = json.loads(capsys.readouterr().out)
+    assert (report["computed"], report["reused"], report["true_T"]) == (1, 3, "cached")
+    assert files[1].exists()
+    for p, t in stamps.items():
+        if p != files[1]:
+            assert os.stat(p).st_mtime_ns == t, p
+    assert (tiny_out / "likelihood.csv").read_text() == csv_before
+    # A changed setting is not silently mixed with the old runs.
+    assert main(["experiment", "likelihood", *TINY, "--episodes", "3", "--seed", "3",
+                 "--out", str(tiny_out), "--resume"]) == 2
+    assert "--resume" in capsys.readouterr().err
+
+
+def test_same_seed_same_csv(tiny_out, tmp_path):
+    shutil.copy(tiny_out / "true_T.json", tmp_path / "true_T.json")   # cached: no re-probe
+    assert main(["experiment", "sizes", *TINY, "--seed", "3", "--out", str(tmp_path)]) == 0
+    assert (tmp_path / "sizes.csv").read_text() == (tiny_out / "sizes.csv").read_text()
+
+
+def test_resume_continues_a_partial_run_from_its_checkpoint(ray_cluster, tmp_path, capsys):
+    """A run interrupted mid-way resumes from its last checkpoint with the same episodes."""
+    args = ["experiment", "milestones", "--runs", "1", "--episodes", "3", "--particles", "2",
+            "--max-steps", "3", "--probe-trials", "1", "--no-progress", "--seed", "5"]
+    full = tmp_path / "full"
+    assert main([*args, "--out", str(full)]) == 0
+    run = json.loads((full / "runs" / "milestones-tmoc" / "0.json").read_text())
+    # Rebuild the checkpoint after episode 1 by running 1 episode with the same config.
+    from coordinator.run_config import RunConfig
+    from coordinator.runner import run as run_task
+    from coordinator.fanout import ShardPool
+
+    config = RunConfig(**run["config"])
+    checkpoints = []
+    pool = ShardPool(n_shards=0)
+    try:
+        run_task(config.model_copy(update={"episodes": 1}), pool=pool,
+                 on_episode=lambda rec, s, c: checkpoints.append(c))
+    finally:
+        pool.close()
+    checkpoints[0]["session"]["config"] = run["config"]
+    part = tmp_path / "part"
+    part.mkdir()
+    shutil.copy(full / "true_T.json", part / "true_T.json")
+    partial = part / "runs" / "milestones-tmoc" / "0.partial.json"
+    partial.parent.mkdir(parents=True)
+    partial.write_text(json.dumps({"config": run["config"], "checkpoint": checkpoints[0]}))
+    capsys.readouterr()
+    assert main([*args, "--out", str(part), "--resume"]) == 0
+    assert json.loads(capsys.readouterr().out)["resumed_from_checkpoint"] == 1
+    assert not partial.exists()
+    assert (part / "milestones.csv").read_text() == (full / "milestones.csv").read_text()
