@@ -28,13 +28,7 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     sub.required = True
     for name in COMMAND_MODULES:
-        try:
-            module = importlib.import_module(f"coordinator.commands.{name}")
-        except ModuleNotFoundError as exc:  # a command not built yet is simply absent
-            if exc.name == f"coordinator.commands.{name}":
-                continue
-            raise
-        module.register(sub)
+        importlib.import_module(f"coordinator.commands.{name}").register(sub)
     return parser
 
 

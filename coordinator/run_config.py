@@ -5,9 +5,6 @@ from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
-DEFAULT_COSTS = {"pickup": 15.0, "stack": 10.0, "push": 30.0, "fail": 50.0, "deliver": 40.0,
-                 "all_delivered": 80.0}
-
 
 class Costs(BaseModel):
     model_config = ConfigDict(extra="forbid")

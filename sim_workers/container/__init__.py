@@ -8,7 +8,7 @@ import numpy as np
 
 from .. import domains
 from ..configuration import Configuration
-from ..properties import PropertyError, block_properties, validate_sizes
+from ..properties import PropertyError, block_properties
 from . import scene, state_mapping, trajectories
 from .spec import ContainerSpec
 
@@ -81,9 +81,7 @@ class ContainerDomain:
         return state_mapping.symbolic_state(self.spec, config)
 
     def action_pose(self, props: dict, config: Configuration, action: str) -> np.ndarray:
-        sizes = validate_sizes(props["block_sizes"], self.spec.n_blocks) \
-            if isinstance(props, dict) and "block_sizes" in props else self.properties(props)["block_sizes"]
-        return state_mapping.action_pose(self.spec, sizes, config, action)
+        return state_mapping.action_pose(self.spec, self.properties(props)["block_sizes"], config, action)
 
     def action_trajectory(self, config: Configuration, action: str, key: np.ndarray,
                           transit: np.ndarray | None = None) -> np.ndarray:
