@@ -53,19 +53,11 @@ PARTICLE_FRACTIONS = (0.25, 0.5, 0.75, 1.0)      # paper: N = 50, 100, 150, 200
 # Paper scale (a cluster): 15 runs of 5000 episodes, N = 200.
 PAPER_SCALE = {"runs": 15, "episodes": 5000, "particles": 200}
 
-# Default scale: each finishes in well under 30 minutes on 2 cores. Estimates from
-# measured costs on this 2-core machine, one run per core: a TMOC episode costs about
-# 0.5 s + 31 ms per particle-action (~20 actions an episode once learned, so ~10 s at
-# N = 16), GP ~14 s at N = 16, TMP-RL ~1 s, TOEP ~2.5 s (more actions, failures).
-#   compare    3 runs x 30 ep, N 16: per run-set 30 x (10.4 + 11.4 + 0.9 + 2.3) = 750 core-s,
-#              x 3 = 2250 core-s -> ~19 min on 2 cores
-#   particles  3 runs x 20 ep, N 24 (6, 12, 18, 24): 20 x (4 x 0.5 + 0.62 x 60) x 3
-#              = 2350 core-s -> ~20 min
-#   milestones 4 runs x 50 ep, N 16: 4 x 50 x 10.4 = 2080 core-s -> ~17 min
-#   sizes      3 runs x 30 ep, N 16: equal 10.4 s/ep, varied ~15 s/ep (8-D belief, more
-#              failures); 6 runs on 2 cores, longest core 2 x 462 + 312 s -> ~21 min
-#   likelihood 3 runs x 30 ep, N 16: 6 x 30 x 10.4 = 1870 core-s -> ~16 min
-# plus T* (20 trials per probe, once per DIR, ~1 min) and Ray start-up.
+# Default scale: each finishes in under 30 minutes on 2 cores. Measured (whole command,
+# 2-core machine, truth 34 mm, docs/RESULTS.md): compare 19 min 6 s (T* estimate
+# included), particles 17 min 26 s, milestones 14 min 28 s, sizes 15 min 17 s,
+# likelihood 14 min 57 s. A TMOC episode costs about 1.8 s + 0.45 s per particle on one
+# core once learned; GP ~12 s at N = 16 (more trips), TMP-RL ~2 s, TOEP ~1 s.
 DEFAULT_SCALE = {
     "compare": {"runs": 3, "episodes": 30, "particles": 16},
     "particles": {"runs": 3, "episodes": 20, "particles": 24},
@@ -74,6 +66,13 @@ DEFAULT_SCALE = {
     "likelihood": {"runs": 3, "episodes": 30, "particles": 16},
 }
 DEFAULT_PROBE_TRIALS = 20
+# The experiments' hidden block size. Not the prior mean (45 mm, `tmoc run`'s default):
+# there a grasp computed from the prior mean already works (pickup tolerates about
+# +-10 mm, `tmoc probe`), so TMP-RL's fixed grounding would be right by construction and
+# the experiments would not test grounding at all. At 34 mm the prior-mean grasp fails
+# every time (probe: 0/10; 36 mm: 10/10) while 34 mm stays inside the prior (30-60 mm).
+EXPERIMENT_TRUE_SIZE = 0.034
+SYMLOG_ABOVE, SYMLOG_LINEAR = 1000.0, 200.0        # utility plot: symlog when curves span > 1000
 CONVERGENCE_BAND = 0.05                           # "within 5 % of the final level"
 
 CSV_COLUMNS = ("setting", "run", "episode", "seed", "agent", "particles", "utility", "actions",
@@ -100,7 +99,7 @@ class Spec:
     particles: int
     seed: int = 0
     max_steps: int = 60
-    true_size: float = 0.045
+    true_size: float = EXPERIMENT_TRUE_SIZE
     milestones: tuple[int, ...] = ()
     probe_trials: int = DEFAULT_PROBE_TRIALS
     probe_seed: int = 0
@@ -697,8 +696,18 @@ def plot(spec: Spec, arrays: dict, summary: dict, path: Path) -> None:
                 ax.fill_between(x, m - s, m + s, alpha=0.2, color=line.get_color())
         ax1.set_xlabel("episode"); ax1.set_ylabel("utility")
         ax1.set_title("utility (mean ± 1 std over runs)")
+        means = np.concatenate([a["utility"].mean(axis=0) for a in arrays.values()])
+        if np.ptp(means) > SYMLOG_ABOVE:
+            # An agent that never grounds the blocks (TMP-RL off the prior mean) fails every
+            # action of every episode, ~30x below the others: a linear axis flattens them.
+            ax1.set_yscale("symlog", linthresh=SYMLOG_LINEAR)
+            lo, hi = ax1.get_ylim()
+            ticks = [t for t in (-1e5, -1e4, -1e3, -100, 0, 100, 1e3) if lo <= t <= hi]
+            ax1.set_yticks(ticks, [f"{t:.0f}" for t in ticks])
+            ax1.set_title(f"utility (mean ± 1 std; linear within ±{SYMLOG_LINEAR:.0f}, log beyond)",
+                          fontsize=10)
         ax2.set_xlabel("episode"); ax2.set_ylabel("|size mean - truth| (mm)")
-        ax2.set_title("posterior error of L")
+        ax2.set_title("posterior error of L (agents without a belief: the prior mean's)", fontsize=10)
         from matplotlib.ticker import MaxNLocator
 
         for ax in (ax1, ax2):
@@ -712,6 +721,46 @@ def plot(spec: Spec, arrays: dict, summary: dict, path: Path) -> None:
     os.replace(tmp, path)
 
 
+def _fmt(v, digits: int = 1, unit: str = "") -> str:
+    return "n/a" if v is None else f"{v:.{digits}f}{unit}"
+
+
+def summary_table(summary: dict) -> str:
+    """The summary as a markdown table (one row per setting; `milestones` adds its bars as a
+    second table). DIR/NAME.md holds it, and docs/RESULTS.md embeds it verbatim."""
+    spec = summary["spec"]
+    lines = [f"`{summary['experiment']}`: {spec['runs']} runs x {spec['episodes']} episodes, "
+             f"true size {spec['true_size'] * 1000:.0f} mm, seed {spec['seed']}; optimum under T*: "
+             f"{'+'.join(map(str, summary['optimum_under_true_T']['loads']))} "
+             f"(expected utility {summary['optimum_under_true_T']['expected_utility']:.1f}, without "
+             "the all-delivered bonus that every complete plan earns alike)",
+             "",
+             "| setting | N | utility, last fifth (mean ± std over runs) | episodes to converge "
+             "| posterior error (mm) | optimal plans, last fifth | successful actions, last fifth "
+             "| wall per run (s) |",
+             "|---|---|---|---|---|---|---|---|"]
+    for label, v in summary["settings"].items():
+        lines.append(
+            f"| {label} | {v['particles'] if v['agent'] in ('tmoc', 'gp') else '-'} "
+            f"| {v['mean_utility_last_fifth']:.1f} ± {v['std_utility_last_fifth']:.1f} "
+            f"| {'not converged' if v['episodes_to_converge'] is None else v['episodes_to_converge']} "
+            f"| {v['final_posterior_error_mm']:.1f} "
+            f"| {_fmt(v['optimal_plans_pct_last_fifth'], 0, ' %')} "
+            f"| {_fmt(v['successful_actions_pct_last_fifth'], 1, ' %')} "
+            f"| {v['mean_wall_s_per_run']:.0f} |")
+    if "milestones" in summary:
+        lines += ["", "| setting | episodes | optimal plans (mean ± std) | successful actions (mean ± std) |",
+                  "|---|---|---|---|"]
+        for m in summary["milestones"]:
+            span = (str(m["episode"]) if m["from_episode"] == m["episode"]
+                    else f"{m['from_episode']}-{m['episode']}")
+            opt = ("n/a" if m["optimal_plans_pct"] is None
+                   else f"{m['optimal_plans_pct']:.0f} ± {m['optimal_plans_pct_std']:.0f} %")
+            lines.append(f"| {m['setting']} | {span} | {opt} "
+                         f"| {m['successful_actions_pct']:.1f} ± {m['successful_actions_pct_std']:.1f} % |")
+    return "\n".join(lines) + "\n"
+
+
 def write_outputs(spec: Spec, out: Path, t_star: dict) -> dict:
     from .run_config import Costs
 
@@ -720,8 +769,9 @@ def write_outputs(spec: Spec, out: Path, t_star: dict) -> dict:
     summary = summarize(spec, arrays, optimal)
     summary["true_T"] = t_star["transition"]
     paths = {"csv": out / f"{spec.name}.csv", "json": out / f"{spec.name}.json",
-             "png": out / f"{spec.name}.png"}
+             "png": out / f"{spec.name}.png", "md": out / f"{spec.name}.md"}
     write_csv(rows, paths["csv"])
     _write_atomic(paths["json"], json.dumps(summary, indent=2))
+    _write_atomic(paths["md"], summary_table(summary))
     plot(spec, arrays, summary, paths["png"])
     return {k: str(v) for k, v in paths.items()}

@@ -16,7 +16,8 @@ _FLAGS = {"particles": "--particles", "episodes": "--episodes", "seed": "--seed"
 
 
 def register(sub) -> None:
-    from ..experiments import DEFAULT_PROBE_TRIALS, DEFAULT_SCALE, EXPERIMENTS, PAPER_SCALE
+    from ..experiments import (DEFAULT_PROBE_TRIALS, DEFAULT_SCALE, EXPERIMENT_TRUE_SIZE, EXPERIMENTS,
+                               PAPER_SCALE)
 
     defaults = "; ".join(f"{n}: {d['runs']} runs x {d['episodes']} episodes, N {d['particles']}"
                          for n, d in DEFAULT_SCALE.items())
@@ -37,7 +38,9 @@ def register(sub) -> None:
     p.add_argument("--seed", type=int, default=0, help="experiment seed S (run seeds derive from it)")
     p.add_argument("--scale", default="default", help="default | paper")
     p.add_argument("--max-steps", type=int, default=60, help="action limit per episode")
-    p.add_argument("--true-size", type=float, default=0.045, help="hidden block size (m)")
+    p.add_argument("--true-size", type=float, default=EXPERIMENT_TRUE_SIZE,
+                   help=f"hidden block size (m; default {EXPERIMENT_TRUE_SIZE}, off the prior mean "
+                        "0.045 on purpose: see docs/RESULTS.md)")
     p.add_argument("--milestones", default=None,
                    help="`milestones`: comma-separated episodes (default: 5 evenly spaced)")
     p.add_argument("--probe-trials", type=int, default=DEFAULT_PROBE_TRIALS,

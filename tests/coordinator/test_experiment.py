@@ -5,7 +5,10 @@ from __future__ import annotations
 import csv
 import json
 import os
+import re
+import shlex
 import shutil
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -125,6 +128,10 @@ def test_every_experiment_writes_png_csv_json(tiny_out, name):
     for r in rows:
         assert int(r["actions"]) == 3 and float(r["size_mean"]) > 0
         assert r["optimal_plan"] in ("0", "1", "")
+    table = (tiny_out / f"{name}.md").read_text()
+    assert table == ex.summary_table(summary)
+    assert table.count("\n| ") == n_settings + 1 + (len(summary.get("milestones", [])) + 1
+                                                     if name == "milestones" else 0)
     png = (tiny_out / f"{name}.png").read_bytes()
     assert png[:8] == b"\x89PNG\r\n\x1a\n" and len(png) > 10_000
     if name == "compare":
@@ -202,3 +209,39 @@ def test_resume_continues_a_partial_run_from_its_checkpoint(ray_cluster, tmp_pat
     assert json.loads(capsys.readouterr().out)["resumed_from_checkpoint"] == 1
     assert not partial.exists()
     assert (part / "milestones.csv").read_text() == (full / "milestones.csv").read_text()
+
+
+# -- docs/RESULTS.md ------------------------------------------------------------------------
+RESULTS = Path(__file__).resolve().parents[2] / "docs"
+
+
+@pytest.mark.parametrize("name", ex.EXPERIMENTS)
+def test_results_page_shows_what_the_committed_runs_measured(name):
+    """docs/RESULTS.md embeds each experiment's table exactly as `summary_table` makes it from
+    the committed summary, its figure is committed (and small), and the command it quotes
+    for the experiment resolves to the scale the summary was made with."""
+    page = (RESULTS / "RESULTS.md").read_text()
+    summary = json.loads((RESULTS / "results" / f"{name}.json").read_text())
+    m = re.search(rf"<!-- table:{name} -->\n(.*?)<!-- /table:{name} -->", page, re.S)
+    assert m, f"docs/RESULTS.md has no table for {name}"
+    assert m.group(1) == ex.summary_table(summary)
+    png = RESULTS / "results" / f"{name}.png"
+    assert f"results/{name}.png" in page and 10_000 < png.stat().st_size < 300_000
+    quoted = re.findall(rf"^tmoc (experiment {name}\b.*)$", page, re.M)
+    cmds = [shlex.split(c, comments=True) for c in quoted]
+    assert cmds, f"docs/RESULTS.md quotes no `tmoc experiment {name}` command"
+    from coordinator.cli import build_parser
+    from coordinator.commands.experiment import spec_from_args
+
+    specs = [spec_from_args(build_parser().parse_args(c)).to_dict() for c in cmds]
+    assert summary["spec"] in specs, (summary["spec"], specs)
+
+
+def test_every_table_on_the_results_page_comes_from_a_committed_summary():
+    """Extra tables (e.g. `compare` at another truth) follow the same rule as the five."""
+    page = (RESULTS / "RESULTS.md").read_text()
+    blocks = re.findall(r"<!-- table:([\w-]+) -->\n(.*?)<!-- /table:\1 -->", page, re.S)
+    assert {k for k, _ in blocks} >= set(ex.EXPERIMENTS)
+    for key, table in blocks:
+        summary = json.loads((RESULTS / "results" / f"{key}.json").read_text())
+        assert table == ex.summary_table(summary), key
