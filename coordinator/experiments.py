@@ -685,7 +685,8 @@ def plot(spec: Spec, arrays: dict, summary: dict, path: Path) -> None:
                               else f"{t['from_episode']}-{t['episode']}" for t in rows])
             ax.set_ylim(0, 105)
             ax.set_xlabel("episodes"); ax.set_ylabel("%"); ax.set_title(f"{title} (mean ± std over runs)")
-        fig.suptitle(f"milestones: TMOC, {spec.runs} runs, N = {spec.particles}")
+        fig.suptitle(f"milestones: TMOC, {spec.runs} runs, N = {spec.particles}, "
+                     f"true size {spec.true_size * 1000:.0f} mm")
     else:
         fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(11, 3.8))
         x = np.arange(1, spec.episodes + 1)
@@ -713,7 +714,8 @@ def plot(spec: Spec, arrays: dict, summary: dict, path: Path) -> None:
         for ax in (ax1, ax2):
             ax.xaxis.set_major_locator(MaxNLocator(integer=True))
         ax1.legend(fontsize=8)
-        fig.suptitle(f"{spec.name}: {spec.runs} runs x {spec.episodes} episodes")
+        fig.suptitle(f"{spec.name}: {spec.runs} runs x {spec.episodes} episodes, "
+                     f"true size {spec.true_size * 1000:.0f} mm")
     fig.tight_layout()
     tmp = path.with_name(path.name + f".tmp{os.getpid()}.png")
     fig.savefig(tmp, dpi=90)
