@@ -730,6 +730,8 @@ def _fmt(v, digits: int = 1, unit: str = "") -> str:
 def summary_table(summary: dict) -> str:
     """The summary as a markdown table (one row per setting; `milestones` adds its bars as a
     second table). DIR/NAME.md holds it, and docs/RESULTS.md embeds it verbatim."""
+    from .agents import agent
+
     spec = summary["spec"]
     lines = [f"`{summary['experiment']}`: {spec['runs']} runs x {spec['episodes']} episodes, "
              f"true size {spec['true_size'] * 1000:.0f} mm, seed {spec['seed']}; optimum under T*: "
@@ -743,7 +745,7 @@ def summary_table(summary: dict) -> str:
              "|---|---|---|---|---|---|---|---|"]
     for label, v in summary["settings"].items():
         lines.append(
-            f"| {label} | {v['particles'] if v['agent'] in ('tmoc', 'gp') else '-'} "
+            f"| {label} | {v['particles'] if agent(v['agent']).learn_belief else '-'} "
             f"| {v['mean_utility_last_fifth']:.1f} ± {v['std_utility_last_fifth']:.1f} "
             f"| {'not converged' if v['episodes_to_converge'] is None else v['episodes_to_converge']} "
             f"| {v['final_posterior_error_mm']:.1f} "
