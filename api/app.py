@@ -78,6 +78,12 @@ def _version() -> str:
         return "0+unknown"
 
 
+def _page(items: list, total: int, limit: int, offset: int) -> dict:
+    """A list endpoint's envelope; next_offset is None on the last page."""
+    nxt = offset + len(items) if offset + len(items) < total else None
+    return {"items": items, "total": total, "limit": limit, "offset": offset, "next_offset": nxt}
+
+
 # ----------------------------------------------------------------------------- errors
 def _err(*codes: int) -> dict:
     return {c: {"model": S.ErrorBody} for c in codes}
@@ -441,9 +447,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
                          status: Annotated[S.TaskStatus | None, Query()] = None):
         """Tasks, newest first."""
         rows, total = store().list_tasks(limit, offset, status)
-        nxt = offset + len(rows) if offset + len(rows) < total else None
-        return {"items": [task_json(r) for r in rows], "total": total, "limit": limit,
-                "offset": offset, "next_offset": nxt}
+        return _page([task_json(r) for r in rows], total, limit, offset)
 
     @v1.get("/tasks/{task_id}", response_model=S.TaskView, tags=["tasks"], responses=_err(404))
     async def get_task(task_id: TaskId):
@@ -600,9 +604,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     async def list_sessions(limit: Annotated[int, Query(ge=1, le=200)] = 50,
                             offset: Annotated[int, Query(ge=0, le=10**9)] = 0):
         rows, total = store().list_sessions(limit, offset)
-        nxt = offset + len(rows) if offset + len(rows) < total else None
-        return {"items": [session_view(r) for r in rows], "total": total, "limit": limit,
-                "offset": offset, "next_offset": nxt}
+        return _page([session_view(r) for r in rows], total, limit, offset)
 
     @v1.get("/sessions/{session_id}", response_model=S.SessionView, tags=["sessions"], responses=_err(404))
     async def get_session(session_id: SessionId):
