@@ -47,10 +47,33 @@ def validate_positive(value, field: str, low: float = 0.0, high: float = np.inf)
     return x
 
 
-def block_properties(props: Mapping, n_blocks: int, default_density: float) -> tuple[np.ndarray, np.ndarray]:
-    """(sizes, masses) from a property dict with `block_sizes` and optional `density`."""
+# The names a caller may pass for blocks. `block_masses` is derived (density x size^3) and
+# accepted back only when it agrees, so that a validated dict can be validated again
+# without losing anything (it once lost `density`: 7800 kg/m^3 built 700 kg/m^3 blocks).
+BLOCK_PROPERTY_NAMES = ("block_sizes", "density", "block_masses")
+
+
+def block_properties(props: Mapping, n_blocks: int, default_density: float) -> dict:
+    """Validated {block_sizes (n,), density, block_masses (n,)} from a property mapping.
+
+    Every key either reaches the physics or is refused by name: an unknown key, or a
+    `block_masses` that disagrees with `density` x `block_sizes`^3, raises PropertyError.
+    """
     if "block_sizes" not in props:
         raise PropertyError("block_sizes: missing")
+    unknown = sorted(str(k) for k in props if k not in BLOCK_PROPERTY_NAMES)
+    if unknown:
+        raise PropertyError(f"{unknown[0]}: unknown property (known: block_sizes, density)")
     sizes = validate_sizes(props["block_sizes"], n_blocks)
     density = validate_positive(props.get("density", default_density), "density", 1.0, 25000.0)
-    return sizes, density * sizes ** 3
+    masses = density * sizes ** 3
+    if "block_masses" in props:
+        try:
+            given = np.asarray(props["block_masses"], dtype=np.float64)
+            agrees = given.shape == masses.shape and np.allclose(given, masses, rtol=1e-9, atol=0.0)
+        except (TypeError, ValueError):
+            agrees = False
+        if not agrees:
+            raise PropertyError("block_masses: derived from density x block_sizes^3; "
+                                "set density instead")
+    return {"block_sizes": sizes, "density": density, "block_masses": masses}

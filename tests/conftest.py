@@ -1,22 +1,97 @@
-"""Session-wide fixtures: one real local Ray cluster of two CPUs for the whole test run."""
+"""Session-wide set-up: the suite tests the *installed* distribution, on one real local Ray.
+
+Why the checkout is kept off ``sys.path``: a suite that imports ``./coordinator`` passes
+while the wheel a user installs lacks ``coordinator.commands`` (it happened: 404 green
+tests, a broken ``tmoc``). pytest runs with ``--import-mode=importlib`` (pyproject.toml),
+which adds no test directory to ``sys.path``; ``python -m pytest`` still adds the working
+directory, so it is removed here, before any test module imports the packages, and the
+session refuses to start if ``coordinator`` would still come from the checkout (an
+editable install, say). Set ``TMOC_TEST_SOURCE=1`` to run against the source tree on
+purpose (a developer's inner loop with ``pip install -e .``); CI never does.
+"""
 from __future__ import annotations
 
+import importlib.util
 import os
+import sys
+import tempfile
+from pathlib import Path
 
 import pytest
+
+REPO = Path(__file__).resolve().parents[1]
+PACKAGES = ("planner", "sim_workers", "coordinator", "api")
 
 # Ray's dashboard and usage reporting are dead weight (and try the network) in tests.
 os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")
 os.environ.setdefault("RAY_DEDUP_LOGS", "0")
 
 
+def _in_checkout(path: str) -> bool:
+    try:
+        return Path(path or ".").resolve() == REPO
+    except OSError:
+        return False
+
+
+sys.path[:] = [p for p in sys.path if not _in_checkout(p)]
+
+
+def installed_origin(package: str) -> Path:
+    """Where `package` is imported from (its directory), without importing it."""
+    spec = importlib.util.find_spec(package)
+    if spec is None or not spec.submodule_search_locations:
+        raise ModuleNotFoundError(f"{package} is not installed: run pip install '.[test]'")
+    return Path(list(spec.submodule_search_locations)[0]).resolve()
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    if os.environ.get("TMOC_TEST_SOURCE") == "1":
+        return
+    for package in PACKAGES:
+        try:
+            origin = installed_origin(package)
+        except ModuleNotFoundError as exc:
+            pytest.exit(str(exc), returncode=4)
+        if origin.is_relative_to(REPO):
+            pytest.exit(f"{package} would be imported from the checkout ({origin}), not from an "
+                        "installed wheel: run pip install '.[test]' (not -e), or set "
+                        "TMOC_TEST_SOURCE=1 to test the source tree on purpose", returncode=4)
+
+
 @pytest.fixture(scope="session")
-def ray_cluster():
+def neutral_cwd(tmp_path_factory) -> Path:
+    """A working directory outside the checkout, for subprocesses and Ray's driver.
+
+    Ray adds the driver's working directory to every worker's ``sys.path``; started from
+    the repository root, actors would import the source tree, not the installed package.
+    """
+    return tmp_path_factory.mktemp("cwd")
+
+
+@pytest.fixture(scope="session")
+def ray_cluster(neutral_cwd):
     """A real `ray.init(num_cpus=2)`, shared by every test that asks for it."""
     import ray
 
     if not ray.is_initialized():
-        ray.init(num_cpus=2, include_dashboard=False, logging_level="ERROR",
-                 log_to_driver=False)
+        here = os.getcwd()
+        os.chdir(neutral_cwd)          # what Ray puts on the workers' sys.path
+        try:
+            ray.init(num_cpus=2, include_dashboard=False, logging_level="ERROR",
+                     log_to_driver=False)
+        finally:
+            os.chdir(here)
     yield ray
     ray.shutdown()
+
+
+def tmoc_command() -> list[str]:
+    """The installed console script `tmoc` (what a user runs), beside this interpreter."""
+    script = Path(sys.executable).with_name("tmoc")
+    return [str(script)] if script.exists() else [sys.executable, "-m", "coordinator.cli"]
+
+
+def subprocess_cwd() -> str:
+    """A directory outside the checkout for a subprocess (so `-m`/cwd cannot import it)."""
+    return tempfile.gettempdir()

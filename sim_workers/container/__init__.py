@@ -46,11 +46,14 @@ class ContainerDomain:
         return {"block_sizes": sizes}
 
     def properties(self, props: dict) -> dict:
-        """Validated property arrays: block_sizes (n,), block_masses (n,)."""
+        """Validated properties: block_sizes (n,), density, block_masses (n,).
+
+        Idempotent (a validated dict validates to itself), so `build` after `reset`
+        keeps a caller's density.
+        """
         if not isinstance(props, dict):
             raise PropertyError("properties: expected a mapping with 'block_sizes'")
-        sizes, masses = block_properties(props, self.spec.n_blocks, self.spec.density)
-        return {"block_sizes": sizes, "block_masses": masses}
+        return block_properties(props, self.spec.n_blocks, self.spec.density)
 
     # -- physics ---------------------------------------------------------------------
     def build(self, client: int, props: dict) -> scene.SceneHandles:

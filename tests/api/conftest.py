@@ -17,6 +17,12 @@ TOKEN = "test-token-0123456789"
 REPO = Path(__file__).resolve().parents[2]
 
 
+def tmoc() -> list[str]:
+    """The installed console script `tmoc`, as a user runs it (never the checkout's source)."""
+    script = Path(sys.executable).with_name("tmoc")
+    return [str(script)] if script.exists() else [sys.executable, "-m", "coordinator.cli"]
+
+
 def free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
@@ -24,7 +30,8 @@ def free_port() -> int:
 
 
 class Server:
-    """`python -m coordinator.cli serve` on a free port with its own database."""
+    """The installed `tmoc serve` on a free port with its own database, run from the
+    database's folder (outside the checkout)."""
 
     def __init__(self, db: Path, *args: str, token: str | None = TOKEN, port: int | None = None) -> None:
         self.db = Path(db)
@@ -46,9 +53,9 @@ class Server:
             env["TMOC_API_TOKEN"] = self.token
         log = open(self.log_path, "a")
         self.proc = subprocess.Popen(
-            [sys.executable, "-m", "coordinator.cli", "serve", "--port", str(self.port),
+            [*tmoc(), "serve", "--port", str(self.port),
              "--db", str(self.db), "--no-access-log", "--log-level", "warning", *self.args],
-            cwd=REPO, env=env, stdout=log, stderr=subprocess.STDOUT,
+            cwd=self.db.parent, env=env, stdout=log, stderr=subprocess.STDOUT,
             start_new_session=True)          # its own process group: Ray's helpers included
         log.close()
         deadline = time.monotonic() + timeout

@@ -12,7 +12,7 @@ import pytest
 from coordinator.cli import UsageError
 from coordinator.commands import serve
 
-from .conftest import REPO, TOKEN, free_port
+from .conftest import TOKEN, free_port, tmoc
 
 PROTECTED = [("GET", "/v1/tasks"), ("POST", "/v1/tasks"), ("GET", "/v1/tasks/t_1"),
              ("DELETE", "/v1/tasks/t_1"), ("GET", "/v1/tasks/t_1/events"), ("GET", "/v1/tasks/t_1/belief"),
@@ -64,16 +64,16 @@ def test_without_a_token_only_loopback_unless_insecure(monkeypatch):
 ])
 def test_serve_refuses_bad_flags_with_exit_code_2(tmp_path, argv, needle):
     env = {k: v for k, v in os.environ.items() if k != "TMOC_API_TOKEN"}
-    out = subprocess.run([sys.executable, "-m", "coordinator.cli", "serve", "--db",
+    out = subprocess.run([*tmoc(), "serve", "--db",
                           str(tmp_path / "x.sqlite"), "--port", str(free_port()), *argv],
-                         cwd=REPO, env=env, capture_output=True, text=True, timeout=60)
+                         cwd=tmp_path, env=env, capture_output=True, text=True, timeout=60)
     assert out.returncode == 2, out
     assert needle in out.stderr and "Traceback" not in out.stderr, out.stderr
 
 
 def test_a_second_server_on_the_same_database_is_refused(server):
     env = {k: v for k, v in os.environ.items() if k != "TMOC_API_TOKEN"}
-    out = subprocess.run([sys.executable, "-m", "coordinator.cli", "serve", "--db", str(server.db),
+    out = subprocess.run([*tmoc(), "serve", "--db", str(server.db),
                           "--port", str(free_port())],
-                         cwd=REPO, env=env, capture_output=True, text=True, timeout=60)
+                         cwd=server.db.parent, env=env, capture_output=True, text=True, timeout=60)
     assert out.returncode == 2 and "in use" in out.stderr, out

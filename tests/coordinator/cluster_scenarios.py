@@ -21,11 +21,20 @@ import sys
 import time
 from pathlib import Path
 
-REPO = Path(__file__).resolve().parents[2]
-sys.path.insert(0, str(REPO))
+REPO = Path(__file__).resolve().parents[2]     # for test helpers only: the packages come installed
 os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")
 
 SPEC = {"agent": "tmoc", "particles": 4, "episodes": 1, "max_steps": 4, "seed": 7}
+
+
+def _load_helper(path: Path):
+    """A test helper module by file path (the checkout is not on sys.path, on purpose)."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location(f"_helper_{path.parent.name}", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
 
 
 def strip(result: dict) -> dict:
@@ -49,7 +58,8 @@ def wait_cpus(ray, n: float, timeout: float = 60.0) -> None:
 def api_scenario(cluster, address: str, tmp: Path) -> dict:
     import httpx
 
-    from tests.api.conftest import Server, wait_for
+    api_helpers = _load_helper(REPO / "tests" / "api" / "conftest.py")
+    Server, wait_for = api_helpers.Server, api_helpers.wait_for
 
     server = Server(tmp / "cluster.sqlite", "--ray-address", address).start(timeout=120)
     out = {}

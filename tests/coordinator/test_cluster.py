@@ -23,10 +23,10 @@ REPO = HERE.parents[1]
 
 
 @pytest.fixture(scope="module")
-def scenarios():
+def scenarios(neutral_cwd):
     env = dict(os.environ, RAY_USAGE_STATS_ENABLED="0", PYTHONUNBUFFERED="1")
     env.pop("RAY_ADDRESS", None)
-    proc = subprocess.run([sys.executable, str(HERE / "cluster_scenarios.py")], cwd=REPO, env=env,
+    proc = subprocess.run([sys.executable, str(HERE / "cluster_scenarios.py")], cwd=neutral_cwd, env=env,
                           capture_output=True, text=True, timeout=420)
     assert proc.returncode == 0, f"{proc.stdout[-4000:]}\n{proc.stderr[-6000:]}"
     return json.loads(proc.stdout.strip().splitlines()[-1])

@@ -100,7 +100,8 @@ def test_dockerfile_installs_the_project_and_runs_the_entry_point():
     runs = " && ".join(a for op, a in instr if op == "RUN")
     assert re.search(r"pip install \.(\s|$)", runs), runs
     copied = {src for op, a in instr if op == "COPY" for src in a.split()[:-1]}
-    for needed in ["pyproject.toml", "README.md", *PYPROJECT["tool"]["setuptools"]["packages"]]:
+    packages = [p.rstrip("*") for p in PYPROJECT["tool"]["setuptools"]["packages"]["find"]["include"]]
+    for needed in ["pyproject.toml", "README.md", *packages]:
         assert needed in copied, f"Dockerfile does not COPY {needed}"
         assert (REPO / needed).exists()
     ignored = {line.strip() for line in (DEPLOY / "Dockerfile.dockerignore").read_text().splitlines()

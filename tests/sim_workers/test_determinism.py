@@ -126,7 +126,11 @@ _SCRIPT = textwrap.dedent("""
     import numpy as np
     from sim_workers.domains import load
     from sim_workers.grounded_world import GroundedWorld
-    from tests.sim_workers.test_determinism import _case, SIZES
+    import importlib.util
+    spec = importlib.util.spec_from_file_location("_determinism", sys.argv[2])
+    helpers = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(helpers)
+    _case, SIZES = helpers._case, helpers.SIZES
     out = {}
     with GroundedWorld(load("container")) as w:
         for action in json.loads(sys.argv[1]):
@@ -138,10 +142,10 @@ _SCRIPT = textwrap.dedent("""
 """)
 
 
-def test_a_fresh_process_gives_identical_bits():
+def test_a_fresh_process_gives_identical_bits(neutral_cwd):
     actions = [PICKUP, PUSH]
-    proc = subprocess.run([sys.executable, "-c", _SCRIPT, json.dumps(actions)], capture_output=True,
-                          text=True, timeout=120, cwd=str(pathlib.Path(__file__).resolve().parents[2]))
+    proc = subprocess.run([sys.executable, "-c", _SCRIPT, json.dumps(actions), __file__],
+                          capture_output=True, text=True, timeout=120, cwd=neutral_cwd)
     assert proc.returncode == 0, proc.stderr
     line = [ln for ln in proc.stdout.splitlines() if ln.startswith("RESULT ")][-1]
     theirs = json.loads(line[len("RESULT "):])

@@ -134,3 +134,37 @@ def test_y_refuses_bad_believed_sizes():
     config = domain.initial_configuration(domain.true_properties())
     with pytest.raises(PropertyError, match=r"block_sizes\[0\]"):
         domain.action_pose({"block_sizes": _with(0, -0.03)}, config, "pickup(r,b1,init)")
+
+
+@pytest.mark.parametrize("density", [7800.0, 300.0])
+def test_a_density_other_than_the_default_reaches_the_bodies(density):
+    """Issue 11: `reset` validated the properties and `build` validated them again, and the
+    second pass dropped `density` (7800 kg/m^3 built 700 kg/m^3 blocks)."""
+    import pybullet as pb
+
+    domain = load("container")
+    assert density != domain.spec.density
+    sizes = np.linspace(0.03, 0.06, N)
+    props = {"block_sizes": sizes, "density": density}
+    config = domain.initial_configuration(props)
+    with GroundedWorld(domain) as world:
+        world.reset(config, props)
+        masses = [pb.getDynamicsInfo(b, -1, physicsClientId=world.client)[0]
+                  for b in world.handles.blocks]
+        assert world.props["density"] == density
+    np.testing.assert_allclose(masses, density * sizes ** 3, rtol=1e-12)
+    # Validation is idempotent: a validated dict validates to itself, density included.
+    once = domain.properties(props)
+    twice = domain.properties(once)
+    assert twice["density"] == density
+    np.testing.assert_array_equal(twice["block_masses"], once["block_masses"])
+
+
+@pytest.mark.parametrize("props,named", [
+    ({"block_sizes": GOOD, "weight": 1.0}, "weight"),
+    ({"block_sizes": GOOD, "densty": 7800.0}, "densty"),
+    ({"block_sizes": GOOD, "density": 7800.0, "block_masses": np.full(N, 0.0638)}, "block_masses"),
+])
+def test_a_property_that_would_not_reach_the_physics_is_refused_by_name(props, named):
+    with pytest.raises(PropertyError, match=named):
+        load("container").properties(props)
