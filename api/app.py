@@ -14,6 +14,7 @@ import json
 import logging
 import re
 import signal
+import sqlite3
 import threading
 from contextlib import asynccontextmanager
 from dataclasses import dataclass
@@ -118,14 +119,22 @@ def _friendly(err: dict, settings: Settings) -> str:
     return msg
 
 
+MAX_ERRORS = 20     # a body with 300k unknown keys made a 27 MB 422 and stalled the loop 8 s
+
+
 def validation_body(errors: list[dict], settings: Settings) -> dict:
+    """The 422 body: the first MAX_ERRORS errors (`errors_total` says how many there were)."""
     detail = []
-    for e in errors:
+    for e in errors[:MAX_ERRORS]:
         loc = list(e.get("loc", ()))
         detail.append({"loc": loc, "msg": _friendly(e, settings), "type": e.get("type", "value_error")})
     message = "; ".join(f"{'body' if d['type'] == 'json_invalid' else _loc_text(d['loc'])}: {d['msg']}"
                         for d in detail[:5])
-    return jsonable_encoder({"detail": detail, "message": message})
+    body = {"detail": detail, "message": message}
+    if len(errors) > MAX_ERRORS:
+        body["errors_total"] = len(errors)
+        body["message"] += f" (and {len(errors) - len(detail)} more errors)"
+    return jsonable_encoder(body)
 
 
 def unprocessable(settings: Settings, loc: list, msg: str, typ: str = "value_error") -> JSONResponse:
@@ -133,48 +142,110 @@ def unprocessable(settings: Settings, loc: list, msg: str, typ: str = "value_err
 
 
 class BodyLimit:
-    """Refuse request bodies over `limit` bytes with a 413 (declared or streamed)."""
+    """Read the whole request body first (at most `limit` bytes: 413 over it, declared or
+    streamed in chunks), refuse a JSON body with more than `max_keys` object keys (422:
+    validating 300k unknown keys stalled the event loop for seconds), then hand the
+    buffered body to the app."""
 
-    def __init__(self, app, limit: int) -> None:
-        self.app, self.limit = app, limit
+    def __init__(self, app, limit: int, max_keys: int = 2000) -> None:
+        self.app, self.limit, self.max_keys = app, limit, max_keys
 
     async def __call__(self, scope, receive, send):
         if scope["type"] != "http":
             return await self.app(scope, receive, send)
-        for k, v in scope.get("headers", ()):
-            if k == b"content-length":
-                try:
-                    too_big = int(v) > self.limit
-                except ValueError:
-                    too_big = False
-                if too_big:
-                    return await self._refuse(send)
-        seen = 0
-
-        async def limited():
-            nonlocal seen
-            message = await receive()
-            if message["type"] == "http.request":
-                seen += len(message.get("body", b""))
-                if seen > self.limit:
-                    raise _TooLarge()
-            return message
-
+        headers = dict(scope.get("headers", ()))
         try:
-            await self.app(scope, limited, send)
-        except _TooLarge:
-            await self._refuse(send)
+            if int(headers.get(b"content-length", b"0")) > self.limit:
+                return await self._refuse(send)
+        except ValueError:
+            pass
+        chunks, seen, more = [], 0, True
+        while more:
+            message = await receive()
+            if message["type"] != "http.request":        # the client went away
+                return
+            body = message.get("body", b"")
+            seen += len(body)
+            if seen > self.limit:
+                return await self._refuse(send)
+            chunks.append(body)
+            more = message.get("more_body", False)
+        body = b"".join(chunks)
+        if body and b"json" in headers.get(b"content-type", b"").lower():
+            keys = _count_keys(body, self.max_keys)
+            if keys > self.max_keys:
+                return await _send_json(send, 422, {
+                    "detail": [{"loc": ["body"], "type": "too_many_keys",
+                                "msg": f"over {self.max_keys} object keys in one body"}],
+                    "message": f"body: over {self.max_keys} object keys in one body"})
+        replayed = False
+
+        async def replay():
+            nonlocal replayed
+            if not replayed:
+                replayed = True
+                return {"type": "http.request", "body": body, "more_body": False}
+            return await receive()                       # e.g. http.disconnect for SSE
+
+        await self.app(scope, replay, send)
 
     async def _refuse(self, send) -> None:
-        body = json.dumps({"detail": f"request body over {self.limit} bytes"}).encode()
-        await send({"type": "http.response.start", "status": 413,
-                    "headers": [(b"content-type", b"application/json"),
-                                (b"content-length", str(len(body)).encode())]})
-        await send({"type": "http.response.body", "body": body})
+        await _send_json(send, 413, {"detail": f"request body over {self.limit} bytes"})
 
 
-class _TooLarge(Exception):
+class _TooManyKeys(Exception):
     pass
+
+
+def _count_keys(body: bytes, limit: int) -> int:
+    """Object keys in a JSON body, counting stops past `limit`; 0 if it is not JSON (the
+    app's own parser reports that)."""
+    seen = 0
+
+    def hook(pairs):
+        nonlocal seen
+        seen += len(pairs)
+        if seen > limit:
+            raise _TooManyKeys
+        return dict(pairs)
+
+    try:
+        json.loads(body, object_pairs_hook=hook)
+    except _TooManyKeys:
+        return seen
+    except (ValueError, RecursionError):
+        return 0
+    return seen
+
+
+async def _send_json(send, status: int, payload: dict, headers: list | None = None) -> None:
+    body = json.dumps(payload).encode()
+    await send({"type": "http.response.start", "status": status,
+                "headers": [(b"content-type", b"application/json"),
+                            (b"content-length", str(len(body)).encode()), *(headers or [])]})
+    await send({"type": "http.response.body", "body": body})
+
+
+class TokenGate:
+    """With a token set: 401 for every path but the open ones, before anything else (the
+    body included) is read or parsed."""
+
+    def __init__(self, app, token: str, open_paths: tuple[str, ...] = ("/health",)) -> None:
+        self.app, self.token, self.open_paths = app, token.encode(), open_paths
+
+    async def __call__(self, scope, receive, send):
+        if scope["type"] != "http" or scope["path"] in self.open_paths:
+            return await self.app(scope, receive, send)
+        if not bearer_ok(dict(scope.get("headers", ())).get(b"authorization", b""), self.token):
+            return await _send_json(send, 401, {"detail": "missing or invalid token: send "
+                                                          "Authorization: Bearer <token>"},
+                                    [(b"www-authenticate", b"Bearer")])
+        await self.app(scope, receive, send)
+
+
+def bearer_ok(header: bytes, token: bytes) -> bool:
+    scheme, _, credentials = header.partition(b" ")
+    return scheme.lower() == b"bearer" and hmac.compare_digest(credentials.strip(), token)
 
 
 class AllowHeader:
@@ -287,6 +358,22 @@ def _prior(spec: dict) -> tuple[dict | None, dict]:
     return (s.belief.summary() if s.belief is not None else None), s.posterior()
 
 
+async def _wait_any(event: asyncio.Event, shutdown: asyncio.Event, timeout: float) -> str:
+    """'event', 'shutdown' or 'timeout', whichever comes first."""
+    if shutdown.is_set():
+        return "shutdown"
+    waits = {asyncio.ensure_future(event.wait()): "event",
+             asyncio.ensure_future(shutdown.wait()): "shutdown"}
+    try:
+        done, _ = await asyncio.wait(waits, timeout=timeout, return_when=asyncio.FIRST_COMPLETED)
+    finally:
+        for w in waits:
+            w.cancel()
+    if not done:
+        return "timeout"
+    return "shutdown" if shutdown.is_set() else "event"
+
+
 # ----------------------------------------------------------------------------- the app
 def create_app(settings: Settings | None = None) -> FastAPI:
     settings = settings or Settings()
@@ -307,6 +394,11 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         app.state.store, app.state.worker, app.state.sessions = store, worker, sessions
         loop = asyncio.get_running_loop()
         notifier.bind(loop)
+        shutting_down = asyncio.Event()
+        store_box["shutting_down"] = shutting_down
+        # Called from uvicorn's signal handling before it waits for open connections: event
+        # streams end at once instead of holding a graceful stop for seconds.
+        app.state.begin_shutdown = lambda: loop.call_soon_threadsafe(shutting_down.set)
         # Ray's core worker installs a C-level handler for SIGTERM/SIGINT when it starts (it
         # dumps a stack and aborts). Give the signals back to the server (graceful shutdown:
         # running tasks stop at a boundary and resume after a restart) once Ray is up.
@@ -325,6 +417,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         try:
             yield
         finally:
+            shutting_down.set()
             await run_in_threadpool(worker.stop, settings.shutdown_grace_s)
             await run_in_threadpool(pools.close)
             store.close()
@@ -336,8 +429,11 @@ def create_app(settings: Settings | None = None) -> FastAPI:
                      "curve) and drive an external robot step by step. With TMOC_API_TOKEN set, "
                      "every route but /health needs `Authorization: Bearer <token>`."),
         lifespan=lifespan, docs_url=None, redoc_url=None, openapi_url=None)
+    # Starlette runs the last added outermost: the token first, then the body.
     app.add_middleware(BodyLimit, limit=settings.max_body_bytes)
     app.add_middleware(AllowHeader, fastapi_app=app)
+    if settings.token:
+        app.add_middleware(TokenGate, token=settings.token)
 
     def store() -> Store:
         return store_box["store"]
@@ -375,19 +471,38 @@ def create_app(settings: Settings | None = None) -> FastAPI:
                                                 settings), 422)
         return JSONResponse({"detail": exc.detail}, exc.status_code, headers=exc.headers)
 
+    @app.exception_handler(sqlite3.Error)
+    async def _storage(request: Request, exc: sqlite3.Error):
+        log.error("storage error on %s %s: %s", request.method, request.url.path, exc)
+        return JSONResponse({"detail": f"storage unavailable ({exc}); nothing was changed, "
+                                       "retry later"}, 503, headers={"Retry-After": "5"})
+
     @app.exception_handler(Exception)
     async def _internal(request: Request, exc: Exception):  # pragma: no cover - a bug
         log.exception("internal error on %s %s", request.method, request.url.path)
         return JSONResponse({"detail": f"internal error: {type(exc).__name__}"}, 500)
 
     # -- health & docs -------------------------------------------------------------------
-    @app.get("/health", response_model=S.Health, tags=["service"])
-    async def health():
-        """Liveness and a glimpse of the queue; never needs a token."""
-        st = store()
-        return {"status": "ok", "version": app.version, "ray": pools.ray_status,
-                "queued": st.count_tasks("queued"), "running": store_box["worker"].current,
-                "auth": bool(settings.token)}
+    @app.get("/health", response_model=S.Health, tags=["service"],
+             responses={503: {"model": S.Health, "description": "the task worker is dead, "
+                                                                "stalled or retrying"}})
+    async def health(request: Request, response: Response):
+        """Liveness, the task worker's state and a glimpse of the queue; never needs a
+        token (the running task's id is shown only with one). 503 when not ok."""
+        worker = store_box["worker"]
+        state = worker.health()
+        try:
+            queued = store().count_tasks("queued")
+        except sqlite3.Error as exc:
+            queued, state = -1, {**state, "ok": False, "last_error": f"store: {exc}"}
+        authorised = not settings.token or bearer_ok(
+            request.headers.get("authorization", "").encode(), settings.token.encode())
+        if not state["ok"]:
+            response.status_code = 503
+        return {"status": "ok" if state["ok"] else "degraded", "version": app.version,
+                "ray": pools.ray_status, "queued": queued,
+                "running": worker.current if authorised else None,
+                "auth": bool(settings.token), "worker": state}
 
     docs = APIRouter(dependencies=deps, include_in_schema=False)
 
@@ -459,10 +574,11 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     async def cancel_task(task_id: TaskId, response: Response):
         """Cancel: a queued task is cancelled at once (200); a running one stops at its next
         episode boundary (202, `cancel_requested`); a finished one cannot be (409)."""
-        status = await run_in_threadpool(store().cancel_task, task_id)
-        if status is None:
+        outcome = await run_in_threadpool(store().cancel_task, task_id)
+        if outcome is None:
             raise HTTPException(404, f"task {task_id!r}: no such task")
-        if status in ("succeeded", "failed"):
+        status, changed = outcome
+        if not changed:
             raise HTTPException(409, f"task {task_id!r} already {status}")
         if status == "running":
             store_box["worker"].cancel(task_id)
@@ -528,9 +644,10 @@ def create_app(settings: Settings | None = None) -> FastAPI:
                         last_status = status
                     if status in TERMINAL:
                         return
-                    try:
-                        await asyncio.wait_for(ev.wait(), KEEPALIVE_S)
-                    except asyncio.TimeoutError:
+                    woke = await _wait_any(ev, store_box["shutting_down"], KEEPALIVE_S)
+                    if woke == "shutdown":
+                        return                 # the client reconnects with Last-Event-ID
+                    if woke == "timeout":
                         yield ": keep-alive\n\n"
                     ev.clear()
             finally:
@@ -594,7 +711,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             session_id, nxt = await run_in_threadpool(store_box["sessions"].create, spec, initial)
         except QueueFull as exc:
             raise HTTPException(429, f"max_sessions: {exc.queued} sessions are active, this "
-                                     f"server's limit is {exc.limit} (--max-sessions)") from None
+                                     f"server's limit is {exc.limit} (--max-sessions)",
+                                headers={"Retry-After": "30"}) from None
         except SessionConflict as exc:
             raise conflict(exc) from None
         response.headers["Location"] = f"/v1/sessions/{session_id}"

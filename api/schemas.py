@@ -38,7 +38,7 @@ def ts(value: float | None) -> datetime | None:
 class StrictCosts(Costs):
     """Utility terms: action costs, the failure penalty and the delivery rewards."""
 
-    model_config = ConfigDict(extra="forbid", strict=True)
+    model_config = ConfigDict(extra="forbid", strict=True, allow_inf_nan=False)
 
 
 _INT_FIELDS = ("particles", "episodes", "seed", "n_blocks", "max_steps", "shards")
@@ -46,9 +46,10 @@ _INT_FIELDS = ("particles", "episodes", "seed", "n_blocks", "max_steps", "shards
 
 class _SpecBase(BaseModel):
     """JSON has one number type: 3.0 is the integer 3 (as JSON Schema says it is); 3.5, "3"
-    and true are still refused by the strict int fields."""
+    and true are still refused by the strict int fields. NaN and infinities are refused as
+    "not a finite number" (not with a misleading range message)."""
 
-    model_config = ConfigDict(extra="forbid", strict=True)
+    model_config = ConfigDict(extra="forbid", strict=True, allow_inf_nan=False)
 
     @model_validator(mode="before")
     @classmethod
@@ -141,6 +142,9 @@ class StepObservation(InitialObservation):
     """The outcome of the pending action; `action` echoes the action the robot executed."""
 
     action: ActionText = Field(description="the pending action this observation answers")
+    step_id: Annotated[str, Field(min_length=1, max_length=160)] = Field(
+        description="the pending step's `step_id` (from `next`): an observation answers one "
+                    "step; the same observation re-posted gets the same reply and changes nothing")
 
 
 # ------------------------------------------------------------------------- responses
@@ -245,6 +249,7 @@ class CurveView(BaseModel):
 class StepView(BaseModel):
     episode: int
     step: int
+    step_id: str | None = Field(None, description="echo it as the observation's `step_id`")
     action: str
     pose: list[float]
     trajectory: list[list[float]]
@@ -304,10 +309,21 @@ class EpisodeStarted(BaseModel):
     next: StepView | None
 
 
+class WorkerHealth(BaseModel):
+    state: Literal["idle", "running", "retrying", "stalled", "dead", "stopped"]
+    ok: bool
+    last_error: str | None = Field(None, description="the last storage or bookkeeping error")
+    consecutive_errors: int
+    last_beat_s: float = Field(description="seconds since the task worker last showed progress")
+
+
 class Health(BaseModel):
-    status: Literal["ok"]
+    status: Literal["ok", "degraded"] = Field(description="`degraded` (HTTP 503) when the task "
+                                                          "worker is dead, stalled or retrying")
     version: str
     ray: str
     queued: int
-    running: str | None
+    running: str | None = Field(description="the running task's id (null without a token "
+                                            "when the server has one)")
     auth: bool
+    worker: WorkerHealth

@@ -87,8 +87,22 @@ CREATE TABLE IF NOT EXISTS session_steps (
 
 TERMINAL = ("succeeded", "failed", "cancelled")
 
+# Columns added after schema version 1 shipped: (table, column, type). Added in place at
+# start-up, so a database written by an earlier version keeps working.
+ADDED_COLUMNS = (
+    ("sessions", "last_reply", "TEXT"),     # the last accepted observation and its reply
+)
+
+
+def _add_missing_columns(db: sqlite3.Connection) -> None:
+    for table, column, typ in ADDED_COLUMNS:
+        have = {r[1] for r in db.execute(f"PRAGMA table_info({table})").fetchall()}
+        if column not in have:
+            db.execute(f"ALTER TABLE {table} ADD COLUMN {column} {typ}")
+
 _TASK_JSON = ("spec", "latest", "belief", "checkpoint", "result")
-_SESSION_JSON = ("spec", "checkpoint", "episode_start", "pending", "posterior", "belief", "latest")
+_SESSION_JSON = ("spec", "checkpoint", "episode_start", "pending", "posterior", "belief", "latest",
+                 "last_reply")
 
 
 def _dumps(value: Any) -> str | None:
@@ -108,27 +122,32 @@ def _row(row: sqlite3.Row | None, json_cols: tuple[str, ...], skip: tuple[str, .
 
 
 def lock_database(path: str | Path):
-    """Hold an exclusive lock next to the database for this process's lifetime (released by
-    the kernel when the process dies, even by SIGKILL): two servers on one database would
-    both resume the same interrupted tasks. Returns the open lock file (keep it referenced);
-    raises OSError naming the holder if another process has it."""
+    """Hold an exclusive lock on the database file itself for this process's lifetime
+    (released by the kernel when the process dies, even by SIGKILL): two servers on one
+    database would both resume the same interrupted tasks.
+
+    The lock is a ``flock`` on the file's inode, not a name: a symlink, a hard link or
+    another spelling of the path reaches the same inode and is refused. (``flock`` and
+    SQLite's POSIX record locks are independent on Linux; the descriptor is kept open for
+    the process's life, because closing any descriptor of a file would drop SQLite's own
+    POSIX locks on it.) The folder is created first. Returns the open file (keep it
+    referenced, close it after the store); raises OSError if another process holds it.
+    """
     import fcntl
     import os
 
-    lock_path = str(Path(path).expanduser()) + ".lock"
-    fh = open(lock_path, "a+")
+    if str(path) == ":memory:" or str(path).startswith("file:"):
+        raise OSError("an in-memory or URI database cannot be shared by the server's threads "
+                      "and workers; give a file path")
+    real = Path(path).expanduser().resolve()
+    real.parent.mkdir(parents=True, exist_ok=True)
+    fd = os.open(real, os.O_RDWR | os.O_CREAT, 0o644)
     try:
-        fcntl.flock(fh, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
     except OSError:
-        fh.seek(0)
-        holder = fh.read().strip() or "another process"
-        fh.close()
-        raise OSError(f"the database is in use by {holder} ({lock_path})") from None
-    fh.seek(0)
-    fh.truncate()
-    fh.write(f"tmoc serve pid {os.getpid()}")
-    fh.flush()
-    return fh
+        os.close(fd)
+        raise OSError(f"the database is in use by another tmoc serve (lock on {real})") from None
+    return os.fdopen(fd, "rb", buffering=0)
 
 
 class QueueFull(Exception):
@@ -144,57 +163,102 @@ class Store:
         self.path = str(path)
         if self.path != ":memory:":
             Path(self.path).expanduser().resolve().parent.mkdir(parents=True, exist_ok=True)
-        self._local = threading.local()
         self._write_lock = threading.RLock()
-        self._conns: list[sqlite3.Connection] = []
-        self._conns_lock = threading.Lock()
+        self._pool_lock = threading.Lock()
+        self._idle: list[sqlite3.Connection] = []
+        self._write_conn: sqlite3.Connection | None = None
+        self._closed = False
         with self._write_lock:
-            db = self._conn()
+            db = self._writer()
             db.executescript(SCHEMA)          # idempotent; executescript manages its own commit
             db.execute("INSERT OR IGNORE INTO meta (key, value) VALUES ('schema_version', ?)",
                        (str(SCHEMA_VERSION),))
+            _add_missing_columns(db)
 
     # -- connections ---------------------------------------------------------------------
-    def _conn(self) -> sqlite3.Connection:
-        conn = getattr(self._local, "conn", None)
-        if conn is None:
-            conn = sqlite3.connect(self.path, timeout=30.0, isolation_level=None,
-                                   check_same_thread=False)
-            conn.row_factory = sqlite3.Row
-            conn.execute("PRAGMA journal_mode=WAL")
-            conn.execute("PRAGMA synchronous=NORMAL")
-            conn.execute("PRAGMA busy_timeout=30000")
-            conn.execute("PRAGMA foreign_keys=ON")
-            self._local.conn = conn
-            with self._conns_lock:
-                self._conns.append(conn)
+    # Reads borrow a connection from a small pool and give it back; writes use one
+    # connection under the write lock. Thread-local connections leaked: the server's
+    # thread pool recycles idle threads, and each new thread opened another connection
+    # (file handles 8 -> 78 over four burst/idle cycles, measured).
+    MAX_IDLE = 8
+
+    def _connect(self) -> sqlite3.Connection:
+        conn = sqlite3.connect(self.path, timeout=30.0, isolation_level=None,
+                               check_same_thread=False)
+        conn.row_factory = sqlite3.Row
+        conn.execute("PRAGMA journal_mode=WAL")
+        conn.execute("PRAGMA synchronous=NORMAL")
+        conn.execute("PRAGMA busy_timeout=30000")
+        conn.execute("PRAGMA foreign_keys=ON")
         return conn
+
+    @contextmanager
+    def _read(self) -> Iterator[sqlite3.Connection]:
+        with self._pool_lock:
+            conn = self._idle.pop() if self._idle else None
+        if conn is None:
+            conn = self._connect()
+        try:
+            yield conn
+        finally:
+            with self._pool_lock:
+                keep = not self._closed and len(self._idle) < self.MAX_IDLE
+                if keep:
+                    self._idle.append(conn)
+            if not keep:
+                conn.close()
+
+    def _writer(self) -> sqlite3.Connection:
+        if self._write_conn is None:
+            self._write_conn = self._connect()
+        return self._write_conn
 
     @contextmanager
     def _write(self) -> Iterator[sqlite3.Connection]:
         with self._write_lock:
-            db = self._conn()
+            db = self._writer()
             db.execute("BEGIN IMMEDIATE")
             try:
                 yield db
             except BaseException:
-                db.execute("ROLLBACK")
+                try:
+                    db.execute("ROLLBACK")
+                except sqlite3.Error:        # the failed statement may have ended it already
+                    pass
                 raise
             else:
                 db.execute("COMMIT")
 
+    def _one(self, sql: str, args: tuple = ()) -> sqlite3.Row | None:
+        with self._read() as db:
+            return db.execute(sql, args).fetchone()
+
+    def _all(self, sql: str, args: tuple = ()) -> list[sqlite3.Row]:
+        with self._read() as db:
+            return db.execute(sql, args).fetchall()
+
+    def open_connections(self) -> int:
+        """Connections this store holds open now (the pool's idle ones and the writer)."""
+        with self._pool_lock:
+            return len(self._idle) + (self._write_conn is not None)
+
     def journal_mode(self) -> str:
-        return self._conn().execute("PRAGMA journal_mode").fetchone()[0]
+        with self._read() as db:
+            return db.execute("PRAGMA journal_mode").fetchone()[0]
 
     def close(self) -> None:
-        with self._conns_lock:
-            for c in self._conns:
-                try:
-                    c.close()
-                except sqlite3.Error:  # pragma: no cover
-                    pass
-            self._conns.clear()
-        self._local = threading.local()
+        with self._pool_lock:
+            self._closed = True
+            conns, self._idle = self._idle, []
+        with self._write_lock:
+            if self._write_conn is not None:
+                conns.append(self._write_conn)
+                self._write_conn = None
+        for c in conns:
+            try:
+                c.close()
+            except sqlite3.Error:  # pragma: no cover
+                pass
 
     # -- tasks ---------------------------------------------------------------------------
     def create_task(self, task_id: str, spec: dict, max_queued: int | None = None) -> dict:
@@ -213,38 +277,37 @@ class Store:
 
     def get_task(self, task_id: str, *, checkpoint: bool = False, belief: bool = False) -> dict | None:
         cols = "*"
-        row = self._conn().execute(f"SELECT {cols} FROM tasks WHERE id = ?", (task_id,)).fetchone()
+        row = self._one(f"SELECT {cols} FROM tasks WHERE id = ?", (task_id,))
         skip = tuple(c for c, keep in (("checkpoint", checkpoint), ("belief", belief)) if not keep)
         return _row(row, _TASK_JSON, skip)
 
     def task_status(self, task_id: str) -> tuple[str, int] | None:
-        row = self._conn().execute("SELECT status, episodes_done FROM tasks WHERE id = ?",
-                                   (task_id,)).fetchone()
+        row = self._one("SELECT status, episodes_done FROM tasks WHERE id = ?",
+                                   (task_id,))
         return None if row is None else (row[0], row[1])
 
     def list_tasks(self, limit: int, offset: int, status: str | None = None) -> tuple[list[dict], int]:
-        db = self._conn()
         cols = ("seq, id, spec, status, episodes, episodes_done, cancel_requested, attempts, "
                 "created_at, started_at, finished_at, updated_at, error, latest, result")
         if status:
-            rows = db.execute(f"SELECT {cols} FROM tasks WHERE status = ? ORDER BY seq DESC "
-                              "LIMIT ? OFFSET ?", (status, limit, offset)).fetchall()
-            total = db.execute("SELECT COUNT(*) FROM tasks WHERE status = ?", (status,)).fetchone()[0]
+            rows = self._all(f"SELECT {cols} FROM tasks WHERE status = ? ORDER BY seq DESC "
+                             "LIMIT ? OFFSET ?", (status, limit, offset))
+            total = self._one("SELECT COUNT(*) FROM tasks WHERE status = ?", (status,))[0]
         else:
-            rows = db.execute(f"SELECT {cols} FROM tasks ORDER BY seq DESC LIMIT ? OFFSET ?",
-                              (limit, offset)).fetchall()
-            total = db.execute("SELECT COUNT(*) FROM tasks").fetchone()[0]
+            rows = self._all(f"SELECT {cols} FROM tasks ORDER BY seq DESC LIMIT ? OFFSET ?",
+                             (limit, offset))
+            total = self._one("SELECT COUNT(*) FROM tasks")[0]
         return [_row(r, _TASK_JSON) for r in rows], total
 
     def count_tasks(self, status: str) -> int:
-        return self._conn().execute("SELECT COUNT(*) FROM tasks WHERE status = ?", (status,)).fetchone()[0]
+        return self._one("SELECT COUNT(*) FROM tasks WHERE status = ?", (status,))[0]
 
     def next_runnable(self) -> str | None:
         """The task to run next: an interrupted run (status `running` while no worker runs
         it: after a restart), else the oldest queued task."""
-        row = self._conn().execute(
+        row = self._one(
             "SELECT id FROM tasks WHERE status IN ('running', 'queued') "
-            "ORDER BY CASE status WHEN 'running' THEN 0 ELSE 1 END, seq LIMIT 1").fetchone()
+            "ORDER BY CASE status WHEN 'running' THEN 0 ELSE 1 END, seq LIMIT 1")
         return None if row is None else row[0]
 
     def claim_task(self, task_id: str) -> dict | None:
@@ -285,23 +348,27 @@ class Store:
                        "finished_at = ?, updated_at = ? WHERE id = ? AND status IN ('queued', 'running')",
                        (status, error, _dumps(result), now, now, task_id))
 
-    def cancel_task(self, task_id: str) -> str | None:
+    def cancel_task(self, task_id: str) -> tuple[str, bool] | None:
         """Cancel: a queued task is cancelled at once; a running one is flagged (it stops at
-        the next episode boundary). Returns the status after the call (None: unknown id)."""
+        the next episode boundary). Returns (status after the call, whether this call
+        changed anything); None for an unknown id. A finished task (cancelled included) is
+        left as it is."""
         now = time.time()
         with self._write() as db:
-            row = db.execute("SELECT status FROM tasks WHERE id = ?", (task_id,)).fetchone()
+            row = db.execute("SELECT status, cancel_requested FROM tasks WHERE id = ?",
+                             (task_id,)).fetchone()
             if row is None:
                 return None
             status = row[0]
             if status == "queued":
                 db.execute("UPDATE tasks SET status = 'cancelled', cancel_requested = 1, "
                            "finished_at = ?, updated_at = ? WHERE id = ?", (now, now, task_id))
-                return "cancelled"
+                return "cancelled", True
             if status == "running":
                 db.execute("UPDATE tasks SET cancel_requested = 1, updated_at = ? WHERE id = ?",
                            (now, task_id))
-            return status
+                return status, True
+            return status, False
 
     def episodes(self, run_id: str, after: int = -1, limit: int | None = None) -> list[tuple[int, str]]:
         """(episode, record JSON text) with episode > `after`, in order."""
@@ -310,7 +377,7 @@ class Store:
         if limit is not None:
             sql += " LIMIT ?"
             args += (limit,)
-        return [(r[0], r[1]) for r in self._conn().execute(sql, args).fetchall()]
+        return [(r[0], r[1]) for r in self._all(sql, args)]
 
     # -- sessions ------------------------------------------------------------------------
     def create_session(self, session_id: str, spec: dict, checkpoint: dict, mirror: dict,
@@ -331,23 +398,22 @@ class Store:
                  _dumps(mirror.get("belief"))))
 
     def get_session(self, session_id: str, *, checkpoint: bool = False, belief: bool = False) -> dict | None:
-        row = self._conn().execute("SELECT * FROM sessions WHERE id = ?", (session_id,)).fetchone()
+        row = self._one("SELECT * FROM sessions WHERE id = ?", (session_id,))
         skip = tuple(c for c, keep in (("checkpoint", checkpoint), ("episode_start", checkpoint),
                                        ("belief", belief)) if not keep)
         return _row(row, _SESSION_JSON, skip)
 
     def list_sessions(self, limit: int, offset: int) -> tuple[list[dict], int]:
-        db = self._conn()
-        rows = db.execute("SELECT seq, id, spec, status, created_at, updated_at, episodes_done, in_episode, "
-                          "step, pending, posterior, latest FROM sessions ORDER BY seq DESC LIMIT ? OFFSET ?",
-                          (limit, offset)).fetchall()
-        total = db.execute("SELECT COUNT(*) FROM sessions").fetchone()[0]
+        rows = self._all("SELECT seq, id, spec, status, created_at, updated_at, episodes_done, in_episode, "
+                         "step, pending, posterior, latest FROM sessions ORDER BY seq DESC LIMIT ? OFFSET ?",
+                         (limit, offset))
+        total = self._one("SELECT COUNT(*) FROM sessions")[0]
         return [_row(r, _SESSION_JSON) for r in rows], total
 
     def session_steps(self, session_id: str, episode: int) -> list[dict]:
-        rows = self._conn().execute(
+        rows = self._all(
             "SELECT observation FROM session_steps WHERE session_id = ? AND episode = ? ORDER BY step",
-            (session_id, episode)).fetchall()
+            (session_id, episode))
         return [json.loads(r[0]) for r in rows]
 
     def session_start_episode(self, session_id: str, episode_start: dict, pending: dict | None) -> None:
@@ -365,11 +431,14 @@ class Store:
     def session_record_step(self, session_id: str, episode: int, step: int, observation: dict,
                             report: dict, *, pending: dict | None, posterior: dict | None,
                             belief: dict | None, finished: dict | None = None,
-                            checkpoint: dict | None = None, status: str = "active") -> None:
+                            checkpoint: dict | None = None, status: str = "active",
+                            last_reply: dict | None = None) -> None:
         """One observed step; when it ends the episode (`finished` is the episode record),
-        also the episode row and the new checkpoint, in the same transaction."""
+        also the episode row and the new checkpoint, in the same transaction. `last_reply`
+        (the step id, the observation and the reply sent) answers a replay of this step."""
         now = time.time()
         with self._write() as db:
+            db.execute("UPDATE sessions SET last_reply = ? WHERE id = ?", (_dumps(last_reply), session_id))
             db.execute("INSERT INTO session_steps (session_id, episode, step, observation, report) "
                        "VALUES (?, ?, ?, ?, ?)",
                        (session_id, episode, step, _dumps(observation), _dumps(report)))
@@ -387,6 +456,10 @@ class Store:
                 db.execute("UPDATE sessions SET step = ?, pending = ?, posterior = ?, "
                            "belief = COALESCE(?, belief), updated_at = ? WHERE id = ?",
                            (step + 1, _dumps(pending), _dumps(posterior), _dumps(belief), now, session_id))
+
+    def session_status(self, session_id: str) -> str | None:
+        row = self._one("SELECT status FROM sessions WHERE id = ?", (session_id,))
+        return None if row is None else row[0]
 
     def close_session(self, session_id: str) -> str | None:
         with self._write() as db:

@@ -18,12 +18,15 @@
 from __future__ import annotations
 
 import asyncio
+import json
 import logging
+import sqlite3
 import threading
 import time
 import traceback
 import uuid
-from dataclasses import dataclass
+import weakref
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -64,26 +67,62 @@ class PoolManager:
         self._users: dict[tuple, int] = {}
         self._last_used: dict[tuple, float] = {}
         self._ray_lock = threading.Lock()
+        self._ray_thread: threading.Thread | None = None
+        self._ray_ready = threading.Event()
+        self._ray_stop = threading.Event()
+        self._ray_error: Exception | None = None
         self.ray_status = "not started"
         self.on_ray_ready = None          # called (from the initialising thread) after ray.init
 
-    def ensure_ray(self) -> None:
+    def ensure_ray(self, timeout: float = 180.0) -> None:
+        """Start (once) or wait for the process's Ray driver.
+
+        Ray is started on a thread of its own that lives as long as the process: the
+        processes ``ray.init`` starts die with the *thread* that started them (Linux's
+        parent-death signal is per thread), and the request threads that first need Ray
+        are recycled after 10 s idle (measured: the server hung ~59 s, then exited, on
+        the first request after the starting thread went away).
+        """
         with self._ray_lock:
             import ray
 
-            if ray.is_initialized():
+            if ray.is_initialized() and self.ray_status == "ready":
                 return
-            from coordinator.fanout import init_ray
+            if self._ray_thread is None or not self._ray_thread.is_alive():
+                self._ray_ready.clear()
+                self._ray_error = None
+                self.ray_status = "starting"
+                self._ray_thread = threading.Thread(target=self._own_ray, name="tmoc-ray-driver",
+                                                    daemon=True)
+                self._ray_thread.start()
+        if not self._ray_ready.wait(timeout):
+            raise RuntimeError(f"ray: not ready after {timeout:.0f} s")
+        if self._ray_error is not None:
+            raise self._ray_error
 
-            self.ray_status = "starting"
-            try:
-                init_ray(self.ray_address)
-            except Exception as exc:
-                self.ray_status = f"error: {exc}"
-                raise
-            self.ray_status = "ready"
-            if self.on_ray_ready is not None:
-                self.on_ray_ready()
+    def _own_ray(self) -> None:
+        """The thread that starts Ray, then keeps it alive until close()."""
+        from coordinator.fanout import init_ray
+
+        try:
+            init_ray(self.ray_address)
+        except Exception as exc:
+            self._ray_error = exc
+            self.ray_status = f"error: {exc}"
+            self._ray_ready.set()
+            return                         # the next ensure_ray() tries again
+        self.ray_status = "ready"
+        self._ray_ready.set()
+        if self.on_ray_ready is not None:
+            self.on_ray_ready()
+        self._ray_stop.wait()
+        try:
+            import ray
+
+            ray.shutdown()
+        except Exception:  # pragma: no cover - Ray already gone
+            pass
+        self.ray_status = "stopped"
 
     def acquire(self, domain: str, n_blocks: int):
         """The shared pool of this scene (created if needed); pair with release()."""
@@ -138,13 +177,9 @@ class PoolManager:
                     pass
             self._pools.clear()
             self._users.clear()
-        try:
-            import ray
-
-            if ray.is_initialized():
-                ray.shutdown()
-        except Exception:  # pragma: no cover
-            pass
+        self._ray_stop.set()                 # the owner thread shuts Ray down
+        if self._ray_thread is not None:
+            self._ray_thread.join(timeout=30)
 
 
 # ----------------------------------------------------------------------------- notifier
@@ -188,7 +223,8 @@ class Notifier:
 class TaskWorker:
     """Runs tasks one at a time, in the order queued, on a background thread."""
 
-    def __init__(self, store: Store, pools: PoolManager, notifier: Notifier) -> None:
+    def __init__(self, store: Store, pools: PoolManager, notifier: Notifier,
+                 stall_s: float = 3600.0) -> None:
         self.store = store
         self.pools = pools
         self.notifier = notifier
@@ -198,6 +234,10 @@ class TaskWorker:
         self._thread: threading.Thread | None = None
         self.current: str | None = None
         self._nodes: dict[str, list[dict]] = {}   # running task -> nodes that ran its particles
+        self.stall_s = stall_s
+        self._beat = time.monotonic()
+        self._errors = 0
+        self._last_error: str | None = None
 
     def nodes_of(self, task_id: str) -> list[dict] | None:
         """The Ray nodes that ran a running task's particles so far (as of its last episode)."""
@@ -224,25 +264,64 @@ class TaskWorker:
             return not self._thread.is_alive()
         return True
 
+    # -- health ------------------------------------------------------------------------
+    def health(self) -> dict:
+        """The worker's state for /health: `ok` is False when the thread is dead, backing
+        off after storage errors, or has not beaten for `stall_s` seconds."""
+        alive = self._thread is not None and self._thread.is_alive()
+        quiet = time.monotonic() - self._beat
+        if not alive:
+            state = "stopped" if self._stopping.is_set() else "dead"
+        elif self._errors:
+            state = "retrying"
+        elif quiet > self.stall_s:
+            state = "stalled"
+        else:
+            state = "running" if self.current else "idle"
+        return {"state": state, "ok": state in ("idle", "running"),
+                "last_error": self._last_error, "consecutive_errors": self._errors,
+                "last_beat_s": round(quiet, 1)}
+
+    def beat(self) -> None:
+        self._beat = time.monotonic()
+
     def _loop(self) -> None:
         # The store is the queue: an interrupted run first (only after a restart is a task
         # `running` while this thread looks for work), then queued tasks in submission order.
+        # A storage error never ends this thread: it backs off (0.5 s doubling to 30 s) and
+        # tries again; an interrupted task is `running` in the store, so it resumes from its
+        # last checkpoint (its episodes are deterministic, so nothing changes but time).
         while not self._stopping.is_set():
-            task_id = self.store.next_runnable()
-            if task_id is None:
-                self._wake.wait(timeout=2.0)
-                self._wake.clear()
-                continue
+            self.beat()
             try:
-                self._run(task_id)
-            except Exception as exc:  # pragma: no cover - a bug in the bookkeeping itself
-                log.error("task %s: worker error\n%s", task_id, traceback.format_exc())
-                if not self._stopping.is_set():
-                    self.store.finish_task(task_id, "failed", error=f"internal error: {exc!r}")
-            finally:
-                self.current = None
-                self._nodes.pop(task_id, None)        # stored with the result by now
-                self.notifier.notify(task_id)
+                task_id = self.store.next_runnable()
+                if task_id is None:
+                    self._errors = 0
+                    self._wake.wait(timeout=2.0)
+                    self._wake.clear()
+                    continue
+                self._run_guarded(task_id)
+                self._errors = 0
+            except Exception as exc:
+                self._errors += 1
+                self._last_error = f"{type(exc).__name__}: {exc}"
+                delay = min(30.0, 0.5 * 2 ** (self._errors - 1))
+                log.error("task worker: %s; retrying in %.1f s", self._last_error, delay)
+                self._stopping.wait(delay)
+
+    def _run_guarded(self, task_id: str) -> None:
+        try:
+            self._run(task_id)
+        except sqlite3.Error:
+            raise                                  # storage: back off, the task resumes
+        except Exception as exc:  # pragma: no cover - a bug in the bookkeeping itself
+            log.error("task %s: worker error\n%s", task_id, traceback.format_exc())
+            if not self._stopping.is_set():
+                self.store.finish_task(task_id, "failed", error=f"internal error: {exc!r}")
+        finally:
+            self.current = None
+            self._nodes.pop(task_id, None)        # stored with the result by now
+            self.notifier.notify(task_id)
 
     def _run(self, task_id: str) -> None:
         from coordinator.runner import run
@@ -264,12 +343,14 @@ class TaskWorker:
         resume = row["checkpoint"]
 
         def on_episode(record: dict, session, checkpoint: dict) -> None:
+            self.beat()
             belief = session.belief.summary() if session.belief is not None else None
             self.store.record_episode(task_id, record, checkpoint, belief)
             self._nodes[task_id] = checkpoint.get("nodes", [])
             self.notifier.notify(task_id)
 
         def should_stop() -> bool:
+            self.beat()
             return task_id in self._cancel or self._stopping.is_set()
 
         pool = None
@@ -281,6 +362,8 @@ class TaskWorker:
             else:
                 result = run(config, on_episode=on_episode, resume=resume,
                              should_stop=should_stop, pool=pool)
+        except sqlite3.Error:
+            raise                         # storage, not the task: retried, resumes
         except Exception as exc:
             if self._stopping.is_set():
                 return                    # shutting down: resume from the checkpoint later
@@ -322,6 +405,8 @@ class LiveSession:
     session: object                      # coordinator.session.Session
     step: int = 0                        # observations in the current episode
     status: str = "active"
+    last_reply: dict | None = None       # {step_id, action, observation, reply} of the last step
+    lock: threading.Lock | None = field(default=None, repr=False)   # keeps the weak entry alive
 
 
 class SessionManager:
@@ -332,20 +417,40 @@ class SessionManager:
         self.pools = pools
         self.max_active = max_active
         self._live: dict[str, LiveSession] = {}
-        self._locks: dict[str, threading.Lock] = {}
+        # Weak: a lock lives while a request holds it or its live session does, so ids that
+        # were only asked about (unknown ones included) leave nothing behind.
+        self._locks: "weakref.WeakValueDictionary[str, threading.Lock]" = weakref.WeakValueDictionary()
         self._guard = threading.Lock()
 
     # -- helpers ---------------------------------------------------------------------
     def _lock_for(self, session_id: str) -> threading.Lock:
         with self._guard:
-            return self._locks.setdefault(session_id, threading.Lock())
+            lock = self._locks.get(session_id)
+            if lock is None:
+                lock = threading.Lock()
+                self._locks[session_id] = lock
+            return lock
+
+    def held_locks(self) -> int:
+        """Per-session locks alive now (for the soak test: must not grow with traffic)."""
+        with self._guard:
+            return len(self._locks)
+
+    def live_count(self) -> int:
+        return len(self._live)
 
     @staticmethod
-    def _step_view(live: LiveSession, step) -> dict | None:
+    def step_id(live: LiveSession, episode: int, step: int) -> str:
+        """Unique to the session, the episode and the step: another session's pending step
+        of the same action has another id."""
+        return f"{live.id}:{episode}:{step}"
+
+    def _step_view(self, live: LiveSession, step) -> dict | None:
         if step is None:
             return None
         d = step.to_dict()
-        d.update(episode=live.session.episode, step=live.step)
+        d.update(episode=live.session.episode, step=live.step,
+                 step_id=self.step_id(live, live.session.episode, live.step))
         return d
 
     def observation(self, live: LiveSession, body: dict) -> tuple[Observation, dict]:
@@ -424,13 +529,19 @@ class SessionManager:
         live = self._live.get(session_id)
         if live is not None:
             return live
+        status = self.store.session_status(session_id)
+        if status is None:
+            raise SessionGone(session_id)
+        if status == "closed":                     # nothing to rebuild for a closed session
+            raise SessionConflict("session is closed", "session")
         row = self.store.get_session(session_id, checkpoint=True)
-        if row is None:
+        if row is None:  # pragma: no cover - deleted between the two reads
             raise SessionGone(session_id)
         from coordinator.session import Session
 
         session = Session.from_checkpoint(row["checkpoint"])
-        live = LiveSession(session_id, row["spec"], session, status=row["status"])
+        live = LiveSession(session_id, row["spec"], session, status=row["status"],
+                           last_reply=row.get("last_reply"), lock=self._lock_for(session_id))
         if row["status"] == "active" and row["episode_start"] is not None:
             steps = self.store.session_steps(session_id, session.episode)
 
@@ -459,7 +570,7 @@ class SessionManager:
         config = run_config(spec)
         session = Session(config)
         session_id = new_id("s")
-        live = LiveSession(session_id, spec, session)
+        live = LiveSession(session_id, spec, session, lock=self._lock_for(session_id))
         checkpoint = session.to_checkpoint()
         mirror: dict = {"posterior": session.posterior(), "belief": self._belief(live)}
         nxt = None
@@ -471,8 +582,7 @@ class SessionManager:
             session.start_episode(obs)
             nxt = self._next(live)
             mirror.update(episode_start=canonical, pending=nxt)
-        lock = self._lock_for(session_id)
-        with lock:
+        with live.lock:
             self.store.create_session(session_id, spec, checkpoint, mirror, self.max_active)
             self._live[session_id] = live
         return session_id, nxt
@@ -526,14 +636,36 @@ class SessionManager:
                 self.store.session_set_pending(session_id, nxt)
             return s.episode, nxt
 
+    def _replay(self, live: LiveSession, body: dict) -> dict | None:
+        """The stored reply if `body` re-posts the last accepted observation (same step id,
+        action and observation); None if it is not about that step; a conflict if it
+        reuses that step's id with anything else."""
+        last = live.last_reply
+        if last is None or body["step_id"] != last["step_id"]:
+            return None
+        _, canonical = self.observation(live, body)
+        same = (body["action"] == last["action"]
+                and json.loads(json.dumps(canonical)) == last["observation"])
+        if not same:
+            raise SessionConflict(f"step_id: step {last['step_id']!r} was already observed with "
+                                  "another observation; it cannot be observed twice", "step_id")
+        return last["reply"]
+
     def observe(self, session_id: str, body: dict) -> dict:
         with self._lock_for(session_id):
             live = self._get(session_id)
             s = live.session
+            replay = self._replay(live, body)
+            if replay is not None:
+                return replay
             if not self._in_episode(live):
                 raise SessionConflict(self._why_idle(live), "episode")
             if s.pending is None:
                 raise SessionConflict("no pending step: GET /v1/sessions/{id}/next first", "action")
+            pending_id = self.step_id(live, s.episode, live.step)
+            if body["step_id"] != pending_id:
+                raise SessionConflict(f"step_id: observation answers step {body['step_id']!r}, the "
+                                      f"pending step is {pending_id!r}", "step_id")
             if body["action"] != s.pending.action:
                 raise SessionConflict(f"action: observation answers {body['action']!r}, the pending "
                                       f"action is {s.pending.action!r}", "action")
@@ -550,17 +682,23 @@ class SessionManager:
                 if finished and s.episode >= s.config.episodes:
                     status = "finished"
                     live.status = status
+                reply = {"session_id": session_id, "report": report, "episode_done": finished,
+                         "episode": _jsonable(record) if finished else None, "next": nxt,
+                         "posterior": s.posterior()}
+                last = {"step_id": pending_id, "action": body["action"],
+                        "observation": json.loads(json.dumps(canonical)),
+                        "reply": json.loads(json.dumps(reply))}
                 self.store.session_record_step(
                     session_id, episode, step, canonical, report, pending=nxt,
                     posterior=s.posterior(), belief=self._belief(live),
                     finished=_jsonable(record) if finished else None,
-                    checkpoint=s.to_checkpoint() if finished else None, status=status)
+                    checkpoint=s.to_checkpoint() if finished else None, status=status,
+                    last_reply=last)
+                live.last_reply = last
             except Exception:
                 self._live.pop(session_id, None)         # rebuilt from the store: unchanged
                 raise
-            return {"session_id": session_id, "report": report, "episode_done": finished,
-                    "episode": _jsonable(record) if finished else None, "next": nxt,
-                    "posterior": s.posterior()}
+            return reply
 
     def close(self, session_id: str) -> str | None:
         with self._lock_for(session_id):

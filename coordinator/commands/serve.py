@@ -75,13 +75,39 @@ def check_args(args) -> str | None:
     return token or None
 
 
+def _server_class():
+    import uvicorn
+
+    class Server(uvicorn.Server):
+        """uvicorn's server that tells the app a stop began (its event streams end at once)."""
+
+        def __init__(self, config, app) -> None:
+            super().__init__(config)
+            self.app = app
+
+        def handle_exit(self, sig, frame) -> None:
+            begin = getattr(self.app.state, "begin_shutdown", None)
+            if begin is not None:
+                begin()
+            super().handle_exit(sig, frame)
+
+    return Server
+
+
+def _Server(config, app):
+    return _server_class()(config, app)
+
+
 def main(args) -> int:
     token = check_args(args)
     from api.app import Settings, create_app
     from api.store import Store, lock_database
 
+    if args.db == ":memory:" or args.db.startswith("file:"):
+        raise UsageError(f"--db {args.db}: an in-memory or URI database is not shared by the "
+                         "server's threads; give a file path (created if missing)")
     try:
-        lock = lock_database(args.db)        # one server per database
+        lock = lock_database(args.db)        # one server per database (its folder made first)
         Store(args.db).close()
     except (sqlite3.Error, OSError) as exc:
         raise UsageError(f"--db {args.db}: {exc}") from None
@@ -92,10 +118,11 @@ def main(args) -> int:
                         max_particles=args.max_particles, max_episodes=args.max_episodes,
                         max_steps=args.max_steps, max_queued=args.max_queued,
                         max_sessions=args.max_sessions, n_shards=args.shards)
-    config = uvicorn.Config(create_app(settings), host=args.host, port=args.port, workers=1,
+    app = create_app(settings)
+    config = uvicorn.Config(app, host=args.host, port=args.port, workers=1,
                             log_level=args.log_level, access_log=not args.no_access_log,
                             timeout_graceful_shutdown=10, lifespan="on")
-    server = uvicorn.Server(config)
+    server = _Server(config, app)
     try:
         server.run()
     finally:

@@ -40,7 +40,9 @@ class Server:
         self.port = port or free_port()
         self.base = f"http://127.0.0.1:{self.port}"
         self.proc: subprocess.Popen | None = None
-        self.log_path = self.db.with_suffix(".log")
+        # The first existing folder above the database: the server makes the rest itself.
+        self.home = next(p for p in self.db.parents if p.exists())
+        self.log_path = self.home / f"{self.db.stem}.log"
 
     @property
     def headers(self) -> dict:
@@ -55,7 +57,7 @@ class Server:
         self.proc = subprocess.Popen(
             [*tmoc(), "serve", "--port", str(self.port),
              "--db", str(self.db), "--no-access-log", "--log-level", "warning", *self.args],
-            cwd=self.db.parent, env=env, stdout=log, stderr=subprocess.STDOUT,
+            cwd=self.home, env=env, stdout=log, stderr=subprocess.STDOUT,
             start_new_session=True)          # its own process group: Ray's helpers included
         log.close()
         deadline = time.monotonic() + timeout

@@ -40,7 +40,8 @@ def test_sigkill_mid_task_then_restart_resumes_without_loss_or_duplicates(tmp_pa
             for _ in range(2):
                 out = robot.execute(np.array(step["trajectory"]), step["action"])
                 r = c.post(f"/v1/sessions/{session}/observations",
-                           json={"action": step["action"], "configuration": out.configuration.to_dict()})
+                           json={"action": step["action"], "step_id": step["step_id"],
+                                 "configuration": out.configuration.to_dict()})
                 assert r.status_code == 200, r.text
                 step = r.json()["next"]
             wait_for(lambda: c.get(f"/v1/tasks/{task}").json()["progress"]["episodes_done"] >= 1,
@@ -60,7 +61,8 @@ def test_sigkill_mid_task_then_restart_resumes_without_loss_or_duplicates(tmp_pa
                 np.testing.assert_array_equal(nxt["trajectory"], step["trajectory"])
                 out = robot.execute(np.array(nxt["trajectory"]), nxt["action"])
                 r = c.post(f"/v1/sessions/{session}/observations",
-                           json={"action": nxt["action"], "configuration": out.configuration.to_dict()})
+                           json={"action": nxt["action"], "step_id": nxt["step_id"],
+                                 "configuration": out.configuration.to_dict()})
                 assert r.status_code == 200, r.text
 
                 events = stream_events(c, task)

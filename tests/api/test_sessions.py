@@ -20,10 +20,13 @@ def robot():
     world.close()
 
 
-def _observation(outcome, action=None, **extra) -> dict:
+def _observation(outcome, step=None, **extra) -> dict:
+    """An observation body; with `step` (a pending step, or an action name) it answers it."""
     body = {"configuration": outcome.configuration.to_dict(), **extra}
-    if action is not None:
-        body["action"] = action
+    if isinstance(step, dict):
+        body.update(action=step["action"], step_id=step["step_id"])
+    elif step is not None:
+        body.update(action=step, step_id="s_none:0:0")
     return body
 
 
@@ -44,7 +47,7 @@ def test_a_robot_driven_session_converges_like_a_simulated_task(client, robot):
         pending = client.get(f"/v1/sessions/{sid}/next").json()["pending"]
         assert pending == step
         outcome = robot.execute(np.array(step["trajectory"]), step["action"])
-        r = client.post(f"/v1/sessions/{sid}/observations", json=_observation(outcome, step["action"]))
+        r = client.post(f"/v1/sessions/{sid}/observations", json=_observation(outcome, step))
         assert r.status_code == 200, r.text
         body = r.json()
         reports.append(body["report"])
@@ -87,7 +90,7 @@ def test_observations_that_do_not_fit_get_409_and_change_nothing(client, robot):
     before = client.get(f"/v1/sessions/{sid}").json()
 
     outcome = robot.execute(np.array(step["trajectory"]), step["action"])
-    good = _observation(outcome, step["action"])
+    good = _observation(outcome, step)
     conf = good["configuration"]
     bad = {
         "action": {**good, "action": "push(r,c,init,goal)"},
@@ -119,8 +122,17 @@ def test_observations_that_do_not_fit_get_409_and_change_nothing(client, robot):
     r = client.post(f"/v1/sessions/{sid}/observations", json=good)
     assert r.status_code == 200, r.text
     assert client.get(f"/v1/sessions/{sid}").json()["step"] == 1
-    # The step is consumed: the same observation again no longer fits.
-    assert client.post(f"/v1/sessions/{sid}/observations", json=good).status_code == 409
+    reply = r.json()
+    # The step is consumed: the same observation again is a replay (issue 12): the same
+    # reply, and nothing changes; the same step id with another observation is a conflict.
+    seen = client.get(f"/v1/sessions/{sid}").json()
+    again = client.post(f"/v1/sessions/{sid}/observations", json=good)
+    assert again.status_code == 200 and again.json() == reply
+    assert client.get(f"/v1/sessions/{sid}").json() == seen
+    other = {**good, "measurements": [0.01] + [0.0] * 16}
+    r = client.post(f"/v1/sessions/{sid}/observations", json=other)
+    assert r.status_code == 409 and "step_id" in r.json()["detail"], r.text
+    assert client.get(f"/v1/sessions/{sid}").json() == seen
 
     assert client.delete(f"/v1/sessions/{sid}").json()["status"] == "closed"
     assert client.get(f"/v1/sessions/{sid}/next").status_code == 409

@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import json
 import os
-import pathlib
 import subprocess
 import sys
 import textwrap
@@ -16,7 +15,6 @@ import numpy as np
 import pybullet as pb
 import pytest
 
-from sim_workers.configuration import Configuration
 from sim_workers.domains import load
 from sim_workers.grounded_world import GroundedWorld
 from sim_workers.probe import loaded_configuration
