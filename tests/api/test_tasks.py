@@ -88,7 +88,8 @@ def test_cancel_a_queued_and_a_running_task(client):
     stored = client.get(f"/v1/tasks/{running['id']}/episodes").json()
     assert [e["episode"] for e in stored] == list(range(done))
 
-    assert client.delete(f"/v1/tasks/{running['id']}").status_code == 200     # idempotent
+    r = client.delete(f"/v1/tasks/{running['id']}")         # finished: a conflict (issue 12)
+    assert r.status_code == 409 and "already cancelled" in r.json()["detail"], r.text
     assert client.delete("/v1/tasks/t_nope").status_code == 404
 
 
