@@ -696,6 +696,25 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         png = await run_in_threadpool(_render_png, row["spec"], records)
         return Response(png, media_type="image/png")
 
+    # -- domains ---------------------------------------------------------------------------
+    @v1.get("/domains", response_model=S.DomainList, tags=["domains"])
+    async def list_domains():
+        """Every registered domain (built-in and installed plugins), as `tmoc domains`."""
+        from coordinator.domains import describe, names
+
+        items = [await run_in_threadpool(describe, n) for n in names()]
+        return {"items": items, "total": len(items)}
+
+    @v1.get("/domains/{name}", response_model=S.DomainView, tags=["domains"], responses=_err(404))
+    async def get_domain(name: Annotated[str, Path(min_length=1, max_length=64)]):
+        """One domain: objects, L (names, units, prior), measurement channels, actions, T
+        contexts and utility terms."""
+        from coordinator.domains import describe, names
+
+        if name not in names():
+            raise HTTPException(404, f"domain {name!r}: no such domain (known: {', '.join(names())})")
+        return await run_in_threadpool(describe, name)
+
     # -- sessions --------------------------------------------------------------------------
     def conflict(exc: SessionConflict) -> HTTPException:
         return HTTPException(409, str(exc))

@@ -327,3 +327,26 @@ class Health(BaseModel):
                                             "when the server has one)")
     auth: bool
     worker: WorkerHealth
+
+
+class DomainView(BaseModel):
+    """A registered domain, as `tmoc domains --json` shows it."""
+
+    name: str
+    description: str
+    source: str = Field(description="builtin, or plugin (<distribution>)")
+    physics: str
+    task: str
+    objects: list[str]
+    n_blocks: int
+    properties: list[dict[str, Any]] = Field(description="L: name, unit, prior, default truth")
+    measurements: dict[str, Any]
+    actions: list[str]
+    contexts: list[list[Any]] = Field(description="T's contexts: [action, integer]")
+    utility: dict[str, float]
+    probe_actions: list[str]
+
+
+class DomainList(BaseModel):
+    items: list[DomainView]
+    total: int

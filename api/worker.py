@@ -456,9 +456,8 @@ class SessionManager:
     def observation(self, live: LiveSession, body: dict) -> tuple[Observation, dict]:
         """An Observation for this session's scene from a request body; raises
         SessionConflict naming the field when it does not fit the scene."""
-        from planner import symbolic
-
         domain = live.session.domain
+        task = live.session.task
         n_objects = len(domain.object_names)
         conf = body["configuration"]
         if len(conf["objects"]) != n_objects:
@@ -473,10 +472,10 @@ class SessionManager:
         config = Configuration(np.array(conf["robot"], dtype=float), np.array(conf["objects"], dtype=float))
         if body.get("state") is not None:
             try:
-                state = symbolic.parse_state(body["state"])
+                state = task.parse_state(body["state"])
             except ValueError as exc:
                 raise SessionConflict(f"state: {exc}", "state") from None
-            blocks = symbolic.blocks(state)
+            blocks = task.blocks(state)
             if len(blocks) != live.session.n_blocks:
                 raise SessionConflict(f"state: names {len(blocks)} blocks, this scene has "
                                       f"{live.session.n_blocks}", "state")
@@ -576,7 +575,7 @@ class SessionManager:
         nxt = None
         if initial is not None:
             obs, canonical = self.observation(live, initial)
-            if symbolic_goal(obs.state):
+            if live.session.task.is_goal(obs.state):
                 raise SessionConflict("observation: every block is already delivered; nothing to do",
                                       "observation")
             session.start_episode(obs)
@@ -598,7 +597,7 @@ class SessionManager:
                 raise SessionConflict(f"episode {s.episode} is in progress (step {live.step}); "
                                       "post its observations first", "episode")
             obs, canonical = self.observation(live, initial)
-            if symbolic_goal(obs.state):
+            if live.session.task.is_goal(obs.state):
                 raise SessionConflict("observation: every block is already delivered; nothing to do",
                                       "observation")
             s.start_episode(obs)
@@ -707,12 +706,6 @@ class SessionManager:
             if live is not None:
                 live.status = "closed"
             return status
-
-
-def symbolic_goal(state) -> bool:
-    from planner import symbolic
-
-    return symbolic.is_goal(state)
 
 
 def _jsonable(value):

@@ -13,7 +13,7 @@ import sys
 from typing import Sequence
 
 # Order is the order shown in `tmoc --help`.
-COMMAND_MODULES = ("run", "probe", "plan", "serve", "experiment")
+COMMAND_MODULES = ("run", "probe", "plan", "serve", "experiment", "domains", "check_domain")
 
 
 class UsageError(ValueError):

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Iterator, Sequence
+from typing import Callable, Iterator, Sequence
 
 import numpy as np
 
@@ -41,13 +41,20 @@ class Transition:
 
     @property
     def context(self) -> tuple[str, int] | None:
+        """The container's context of this record (see ``context_under`` for any domain)."""
         return context_of(self.state, self.action)
+
+    def context_under(self, context_fn: Callable) -> tuple[str, int] | None:
+        """The T context of this record under a domain's ``context_of``."""
+        return context_fn(self.state, self.action)
 
 
 class ExperiencePool:
     """Aggregated real and simulated transitions; ``counts()`` is what T is built from."""
 
-    def __init__(self) -> None:
+    def __init__(self, context_fn: Callable | None = None) -> None:
+        # The domain's (state, action) -> context; it also validates every action added.
+        self.context_fn = context_of if context_fn is None else context_fn
         self._weights: dict[_Key, float] = {}
         self._context: dict[_Key, tuple[str, int] | None] = {}  # derived, cached per record
         self._counts: dict[str, dict[tuple[str, int], tuple[float, float]]] | None = None
@@ -59,7 +66,7 @@ class ExperiencePool:
         if key in self._weights:
             self._weights[key] += weight
         else:
-            self._context[key] = context_of(key[1], key[2])  # validates the action too
+            self._context[key] = self.context_fn(key[1], key[2])  # validates the action too
             self._weights[key] = weight
         self._counts = None
 
@@ -156,8 +163,8 @@ class ExperiencePool:
                 "n_real": self.n_real, "n_sim_actions": self.n_sim_actions}
 
     @classmethod
-    def from_dict(cls, data: dict) -> "ExperiencePool":
-        pool = cls()
+    def from_dict(cls, data: dict, context_fn: Callable | None = None) -> "ExperiencePool":
+        pool = cls(context_fn)
         table = [frozenset(atoms) for atoms in data["states"]]
         for src, i, a, j, k, w in data["records"]:
             if src not in SOURCES:
@@ -166,7 +173,7 @@ class ExperiencePool:
             if not (math.isfinite(w) and w >= 0):
                 raise ValueError(f"records: bad weight {w!r}")
             key = (src, table[i], a, table[j], table[k])
-            pool._context[key] = context_of(key[1], key[2])
+            pool._context[key] = pool.context_fn(key[1], key[2])
             pool._weights[key] = w
         pool.n_real = int(data.get("n_real", 0))
         pool.n_sim_actions = int(data.get("n_sim_actions", 0))

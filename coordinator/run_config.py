@@ -1,13 +1,30 @@
 """A task's settings as one validated, JSON-able record (pydantic)."""
 from __future__ import annotations
 
-from typing import Literal
+from typing import Annotated, Literal
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import AfterValidator, BaseModel, ConfigDict, Field, model_validator
+
+
+def _registered_domain(name: str) -> str:
+    """A domain name the registry knows (built-in or installed plugin)."""
+    from coordinator.domains import names
+
+    known = names()
+    if name not in known:
+        raise ValueError(f"unknown domain {name!r} (known: {', '.join(known)})")
+    return name
+
+
+DomainName = Annotated[str, AfterValidator(_registered_domain)]
 
 
 class Costs(BaseModel):
-    model_config = ConfigDict(extra="forbid")
+    """Utility terms: action costs, the failure penalty and reward terms. The fields are
+    the container's (and stack-and-push's); a plugin domain's own terms are extra fields,
+    checked against its utility terms by RunConfig."""
+
+    model_config = ConfigDict(extra="allow")
     pickup: float = Field(15.0, ge=0, le=1e4)
     stack: float = Field(10.0, ge=0, le=1e4)
     push: float = Field(30.0, ge=0, le=1e4)
@@ -20,7 +37,7 @@ class RunConfig(BaseModel):
     """Everything that determines a run; with the same values a run is reproducible."""
 
     model_config = ConfigDict(extra="forbid")
-    domain: Literal["container"] = "container"
+    domain: DomainName = "container"
     agent: Literal["tmoc", "tmp_rl", "gp", "toep"] = "tmoc"
     particles: int = Field(32, ge=1, le=5000)
     episodes: int = Field(8, ge=1, le=100000)
@@ -44,3 +61,17 @@ class RunConfig(BaseModel):
     sim_weight: float = Field(1.0, ge=0, le=100)
     costs: Costs = Costs()
     shards: int | None = Field(None, ge=0, le=4096)
+
+    @model_validator(mode="after")
+    def _costs_are_the_domains(self) -> "RunConfig":
+        from coordinator.domains import task_half
+
+        terms = task_half(self.domain).default_costs
+        for key in sorted(self.costs.model_fields_set | set(self.costs.model_extra or {})):
+            if key not in terms:
+                raise ValueError(f"costs.{key}: not a utility term of domain {self.domain!r} "
+                                 f"(terms: {', '.join(terms)})")
+            value = getattr(self.costs, key)
+            if not isinstance(value, (int, float)) or not 0 <= float(value) <= 1e4:
+                raise ValueError(f"costs.{key}: expected a number in [0, 10000], got {value!r}")
+        return self

@@ -14,14 +14,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from planner import symbolic
-from planner import task_planner
 from planner.motion import Bounds, MotionPlanningError, box_checker, plan_approach, plan_transit
 from sim_workers.configuration import Configuration
-from sim_workers.domains import load
 
 from .agents import agent as agent_spec
 from .belief import Belief, gaussian_log_likelihood, mode_mask, symbolic_log_likelihood
+from .domains import load as load_domain
 from .experience import ExperiencePool
 from .reality import Observation
 from .run_config import RunConfig
@@ -65,8 +63,11 @@ class Session:
     def __init__(self, config: RunConfig, pool=None) -> None:
         self.config = config
         self.agent = agent_spec(config.agent)
-        self.domain = load(config.domain, n_blocks=config.n_blocks)
+        joined = load_domain(config.domain, n_blocks=config.n_blocks)
+        self.domain = joined.physics          # scene, Y, Y^-1, measurements
+        self.task = joined.task               # symbolic model, T's contexts, utility, planner
         self.n_blocks = config.n_blocks
+        self.costs = utility_terms(self.task, config)
         self.pool = pool
         seq = np.random.SeedSequence(config.seed)
         self.rng = np.random.default_rng(seq.spawn(1)[0])
@@ -76,8 +77,8 @@ class Session:
         self.high = np.full(self.dims, spec.prior_high)
         self.belief = (Belief.from_prior(config.particles, self.low, self.high, self.rng)
                        if self.agent.learn_belief else None)
-        self.experience = ExperiencePool()
-        self.transition = TransitionModel(self.n_blocks)
+        self.experience = ExperiencePool(self.task.context_of)
+        self.transition = self._transition_model()
         self.episode = 0
         self.episodes: list[dict] = []
         self.particle_actions = 0
@@ -88,6 +89,13 @@ class Session:
         self.pending: PendingStep | None = None
         self.stats = EpisodeStats()
         self._t0 = 0.0
+
+    def _transition_model(self) -> TransitionModel:
+        """T rebuilt from the experience pool over the domain's contexts."""
+        return TransitionModel.from_experience(
+            self.experience, self.n_blocks,
+            sim_weight=self.config.sim_weight if self.agent.sim_experience else 0.0,
+            contexts=self.task.contexts(self.n_blocks), context_fn=self.task.context_of)
 
     # -- particles -----------------------------------------------------------------------
     def particle_sizes(self) -> np.ndarray:
@@ -117,16 +125,16 @@ class Session:
         return self.observation.state
 
     def episode_done(self) -> bool:
-        return symbolic.is_goal(self.state) or self.stats.actions >= self.config.max_steps
+        return self.task.is_goal(self.state) or self.stats.actions >= self.config.max_steps
 
     def _replan(self) -> None:
         t0 = time.perf_counter()
-        costs = self.config.costs.model_dump()
+        costs = self.costs
         T = self.transition.to_planner()
         if self.agent.planner == "satisficing":
-            plan = task_planner.satisficing(self.state, rng=self.rng, transition=T, costs=costs)
+            plan = self.task.satisficing(self.state, rng=self.rng, transition=T, costs=costs)
         else:
-            plan = task_planner.plan(self.state, T, costs)
+            plan = self.task.plan(self.state, T, costs)
         self.plan = list(plan.actions)
         self.stats.plans.append(list(plan.loads))
         self.stats.planning_s += time.perf_counter() - t0
@@ -196,7 +204,7 @@ class Session:
         transit = self._transit(config, pre)
         traj = self.domain.action_trajectory(config, action, x, transit)
         t_pre = self.domain.transit_end_time(config, action, x, transit)
-        expected = symbolic.apply(self.state, action)
+        expected = self.task.apply(self.state, action)
         self.pending = PendingStep(action, x, traj, expected, t_pre, xs)
         return self.pending
 
@@ -211,9 +219,7 @@ class Session:
         if self.belief is not None and self.pool is not None:
             report.update(self._reweight(before, step, observation))
         self.experience.add_real(before.state, step.action, observation.state, step.expected)
-        self.transition = TransitionModel.from_experience(
-            self.experience, self.n_blocks,
-            sim_weight=self.config.sim_weight if self.agent.sim_experience else 0.0)
+        self.transition = self._transition_model()
         self._account(before.state, step, observation.state, success)
         self.observation = observation
         self.pending = None
@@ -268,22 +274,20 @@ class Session:
         return symbolic_log_likelihood(flag(observed), [flag(s) for s in predicted], self.config.error_rate)
 
     def _account(self, state, step: PendingStep, next_state, success: bool) -> None:
-        c = self.config.costs
+        """Realised utility of a step: -cost - fail if it failed, + the domain's reward terms."""
+        c = self.costs
         name = step.action.split("(", 1)[0]
         s = self.stats
         s.actions += 1
-        s.utility -= getattr(c, name)
+        s.utility -= c[name]
         if not success:
-            s.utility -= c.fail
+            s.utility -= c["fail"]
             s.failures[name] = s.failures.get(name, 0) + 1
-        if step.action.startswith("push") and step.action.endswith("goal)"):
-            s.loads.append(sum(a.startswith("at_container(") for a in state))
-        delivered = lambda st: sum(a.startswith("is_in(b") and a.endswith(",goal)") for a in st)
-        gained = delivered(next_state) - delivered(state)
-        s.utility += c.deliver * gained
-        s.delivered += gained
-        if symbolic.is_goal(next_state):
-            s.utility += c.all_delivered
+        reward, metrics = self.task.step_reward(state, step.action, next_state, c)
+        if metrics.get("load") is not None:
+            s.loads.append(metrics["load"])
+        s.delivered += metrics.get("delivered", 0)
+        s.utility += reward
 
     def posterior(self) -> dict:
         if self.belief is None:
@@ -330,10 +334,8 @@ class Session:
         session = cls(RunConfig(**data["config"]), pool)
         if data["belief"] is not None:
             session.belief = Belief.from_dict(data["belief"])
-        session.experience = ExperiencePool.from_dict(data["experience"])
-        session.transition = TransitionModel.from_experience(
-            session.experience, session.n_blocks,
-            sim_weight=session.config.sim_weight if session.agent.sim_experience else 0.0)
+        session.experience = ExperiencePool.from_dict(data["experience"], session.task.context_of)
+        session.transition = session._transition_model()
         session.rng.bit_generator.state = data["rng"]
         session.episode = data["episode"]
         session.episodes = list(data["episodes"])
@@ -354,3 +356,14 @@ class Session:
             report = self.observe(obs)
             if "episode" in report:
                 return report["episode"]
+
+
+def utility_terms(task, config: RunConfig) -> dict[str, float]:
+    """The domain's utility terms (action costs, "fail", reward terms), with the values a
+    run set explicitly in `config.costs` (a term the domain does not have is refused by
+    RunConfig's validation)."""
+    terms = dict(task.default_costs)
+    given = config.costs.model_dump()
+    for key in config.costs.model_fields_set | set(config.costs.model_extra or {}):
+        terms[key] = float(given[key])
+    return terms

@@ -1,6 +1,12 @@
 """T: the probability that an action succeeds, per (action, context), learned from counts.
 
-Contexts (container domain, design section 3):
+A context is ``(action name, integer)``; which contexts exist and how a (state, action)
+maps to one is the domain's data (``planner.domain.TaskDomain.contexts`` and
+``context_of``), passed in as ``contexts`` and ``context_fn``. An action or context the
+domain does not list is an error, never a silent None. Without them, T uses the
+container's (below), so existing callers and checkpoints keep working.
+
+Contexts of the container domain (design section 3):
 
 * ``("pickup", 0)`` for every pickup (one context);
 * ``("stack", k)``, k = blocks already in the container, 0 .. n_blocks - 1;
@@ -23,14 +29,16 @@ from __future__ import annotations
 import math
 import re
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Callable, Sequence
 
 import numpy as np
+
+from planner.container import context_of as _container_context_of
 
 if TYPE_CHECKING:  # only for the type hint of from_experience; no import cycle at runtime
     from coordinator.experience import ExperiencePool
 
-__all__ = ["ACTION_NAMES", "TransitionModel", "context_of", "parse_term"]
+__all__ = ["ACTION_NAMES", "TransitionModel", "container_contexts", "context_of", "parse_term"]
 
 ACTION_NAMES = ("pickup", "stack", "push")
 _TERM = re.compile(r"^\s*([a-z_][A-Za-z0-9_]*)\s*\((.*)\)\s*$")
@@ -45,44 +53,36 @@ def parse_term(term: str) -> tuple[str, tuple[str, ...]]:
     return m.group(1), args
 
 
-def _load(state: frozenset[str], container: str) -> int:
-    """Number of ``at_container(_, container)`` atoms: blocks in that container."""
-    k = 0
-    for atom in state:
-        if atom.startswith("at_container("):
-            _, args = parse_term(atom)
-            if len(args) == 2 and args[1] == container:
-                k += 1
-    return k
+# The container's context map moved to its task half; re-exported for existing callers.
+context_of = _container_context_of
 
 
-def context_of(state: frozenset[str], action: str) -> tuple[str, int] | None:
-    """The (name, context) T learns for ``action`` taken in ``state``; None when not learned."""
-    name, args = parse_term(action)
-    arity = {"pickup": 3, "stack": 3, "push": 4}.get(name)
-    if arity is None:
-        raise ValueError(f"action {action!r}: unknown action name {name!r}")
-    if len(args) != arity:
-        raise ValueError(f"action {action!r}: {name} takes {arity} arguments")
-    if name == "pickup":
-        return ("pickup", 0)
-    if name == "stack":
-        return ("stack", _load(state, args[2]))
-    if args[3] != "goal":  # the return push: always succeeds, not learned
-        return None
-    k = _load(state, args[1])
-    return ("push", k) if k > 0 else None
+def container_contexts(n_blocks: int) -> tuple[tuple[str, int], ...]:
+    """The container's contexts: pickup 0, stack 0..n-1, push 1..n."""
+    n = int(n_blocks)
+    return (("pickup", 0),) + tuple(("stack", k) for k in range(n)) \
+        + tuple(("push", k) for k in range(1, n + 1))
 
 
 @dataclass(eq=False)  # arrays inside: element-wise == would be ambiguous
 class TransitionModel:
-    """Weighted success counts per (action, context) and the probabilities they imply."""
+    """Weighted success counts per (action, context) and the probabilities they imply.
+
+    >>> t = TransitionModel(n_blocks=2)
+    >>> t.observe("push", 2, success=False); t.observe("push", 2, success=True)
+    >>> t.probability("push", 2), t.probability("push", 1)
+    (0.6666666666666666, 1.0)
+    >>> t.to_planner()
+    {'pickup': 1.0, 'stack': [1.0, 1.0], 'push': [1.0, 0.6666666666666666]}
+    """
 
     n_blocks: int
     prior_successes: float = 1.0
     # name -> (weighted successes, weighted trials) per context slot; see _slot for indexing
     successes: dict[str, np.ndarray] = field(default_factory=dict)
     trials: dict[str, np.ndarray] = field(default_factory=dict)
+    contexts: Sequence[tuple[str, int]] | None = None      # default: the container's
+    context_fn: Callable | None = field(default=None, repr=False)   # default: context_of
 
     def __post_init__(self) -> None:
         if int(self.n_blocks) < 1:
@@ -91,27 +91,44 @@ class TransitionModel:
         if not (self.prior_successes >= 0 and math.isfinite(self.prior_successes)):
             raise ValueError(f"prior_successes: must be finite and >= 0, got {self.prior_successes}")
         self.prior_successes = float(self.prior_successes)
-        sizes = {"pickup": 1, "stack": self.n_blocks, "push": self.n_blocks}
+        contexts = container_contexts(self.n_blocks) if self.contexts is None else self.contexts
+        self.contexts = tuple((str(a), int(k)) for a, k in contexts)
+        if self.context_fn is None:
+            self.context_fn = context_of
+        # name -> sorted context indices; slot i of a name's arrays is its i-th index
+        self._index: dict[str, list[int]] = {}
+        for name, k in self.contexts:
+            self._index.setdefault(name, []).append(k)
+        for name in self._index:
+            self._index[name] = sorted(set(self._index[name]))
         for table in (self.successes, self.trials):
-            for name, size in sizes.items():
+            for name in list(table):
+                if name not in self._index:
+                    raise ValueError(f"{name}: not an action with contexts (known: {', '.join(self._index)})")
+            for name, ks in self._index.items():
+                size = len(ks)
                 arr = np.zeros(size) if name not in table else np.array(table[name], dtype=np.float64)
                 if arr.shape != (size,):
                     raise ValueError(f"{name}: expected {size} counts, got shape {arr.shape}")
                 table[name] = arr
 
+    @property
+    def action_names(self) -> tuple[str, ...]:
+        return tuple(self._index)
+
     def _slot(self, action_name: str, context: int) -> int:
         """Index into the count arrays; ValueError naming the bad (action, context)."""
-        if action_name not in ACTION_NAMES:
-            raise ValueError(f"action {action_name!r}: unknown (expected one of {ACTION_NAMES})")
+        if action_name not in self._index:
+            raise ValueError(f"action {action_name!r}: unknown (expected one of {tuple(self._index)})")
         k = int(context)
-        n = self.n_blocks
-        valid = {"pickup": (0, 0), "stack": (0, n - 1), "push": (1, n)}[action_name]
-        if not valid[0] <= k <= valid[1]:
+        ks = self._index[action_name]
+        if k not in ks:
+            n = self.n_blocks
             raise ValueError(
                 f"context {k} invalid for {action_name!r} with {n} blocks "
-                f"(valid {valid[0]}..{valid[1]})"
+                f"(valid {ks[0]}..{ks[-1]})"
             )
-        return k - 1 if action_name == "push" else k
+        return ks.index(k)
 
     def add_counts(self, action_name: str, context: int, successes: float, trials: float) -> None:
         """Add already-weighted evidence (used when rebuilding T from a pool)."""
@@ -130,7 +147,7 @@ class TransitionModel:
     def observe_transition(self, state: frozenset[str], action: str, success: bool,
                            weight: float = 1.0) -> None:
         """``observe`` with the context read off the state; unlearned actions are skipped."""
-        ctx = context_of(state, action)
+        ctx = self.context_fn(state, action)
         if ctx is not None:
             self.observe(ctx[0], ctx[1], success, weight)
 
@@ -144,35 +161,42 @@ class TransitionModel:
 
     def probability_of(self, state: frozenset[str], action: str) -> float:
         """p for a concrete action in a concrete state (1.0 for unlearned actions)."""
-        ctx = context_of(state, action)
+        ctx = self.context_fn(state, action)
         return 1.0 if ctx is None else self.probability(*ctx)
 
     def to_planner(self) -> dict:
-        """``{"pickup": p, "stack": [p_0..p_{n-1}], "push": [p_1..p_n]}`` for the task planner
-        (stack index = blocks already in the container, push index k-1 = load k)."""
-        n = self.n_blocks
-        return {
-            "pickup": self.probability("pickup", 0),
-            "stack": [self.probability("stack", k) for k in range(n)],
-            "push": [self.probability("push", k) for k in range(1, n + 1)],
-        }
+        """T for the task planner, grouped by action name: ``{name: p}`` for an action whose
+        only context is 0, else ``{name: [p per context index, in order]}``. For the
+        container: ``{"pickup": p, "stack": [p_0..p_{n-1}], "push": [p_1..p_n]}`` (stack
+        index = blocks already in the container, push index k-1 = load k)."""
+        out: dict = {}
+        for name, ks in self._index.items():
+            ps = [self.probability(name, k) for k in ks]
+            out[name] = ps[0] if ks == [0] else ps
+        return out
 
     def to_dict(self) -> dict:
         """Exact, JSON-able state (Python floats round-trip bit for bit)."""
-        return {
+        out = {
             "n_blocks": self.n_blocks,
             "prior_successes": self.prior_successes,
             "successes": {k: v.tolist() for k, v in self.successes.items()},
             "trials": {k: v.tolist() for k, v in self.trials.items()},
         }
+        if self.contexts != container_contexts(self.n_blocks):
+            out["contexts"] = [list(c) for c in self.contexts]
+        return out
 
     @classmethod
-    def from_dict(cls, data: dict) -> "TransitionModel":
+    def from_dict(cls, data: dict, context_fn: Callable | None = None) -> "TransitionModel":
+        contexts = data.get("contexts")
         return cls(
             n_blocks=int(data["n_blocks"]),
             prior_successes=float(data["prior_successes"]),
             successes={k: np.array(v, dtype=np.float64) for k, v in data["successes"].items()},
             trials={k: np.array(v, dtype=np.float64) for k, v in data["trials"].items()},
+            contexts=None if contexts is None else [tuple(c) for c in contexts],
+            context_fn=context_fn,
         )
 
     @classmethod
@@ -183,6 +207,8 @@ class TransitionModel:
         *,
         sim_weight: float = 1.0,
         prior_successes: float = 1.0,
+        contexts: Sequence[tuple[str, int]] | None = None,
+        context_fn: Callable | None = None,
     ) -> "TransitionModel":
         """T rebuilt from a pool: real evidence at weight 1, simulated at weight * sim_weight.
 
@@ -193,7 +219,8 @@ class TransitionModel:
         """
         if not (sim_weight >= 0 and math.isfinite(sim_weight)):
             raise ValueError(f"sim_weight: must be finite and >= 0, got {sim_weight}")
-        model = cls(n_blocks=n_blocks, prior_successes=prior_successes)
+        model = cls(n_blocks=n_blocks, prior_successes=prior_successes, contexts=contexts,
+                    context_fn=context_fn)
         counts = pool.counts()
         for (name, ctx), (s, n) in counts["real"].items():
             model.add_counts(name, ctx, s, n)

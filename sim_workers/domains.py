@@ -1,11 +1,17 @@
-"""Domain registry: a domain is data plus a few functions, registered by name.
+"""Domain registry (the physics half): a domain is data plus a few functions, by name.
 
 ``load("container", n_blocks=8)`` returns a domain object; a second domain is an
-addition here (``register``), not a rewrite of the world or the shards.
+addition here (``register``), not a rewrite of the world or the shards. Domains from
+other installed packages are found through the ``tmoc.domains`` entry-point group: each
+entry point names a mapping ``{"physics": "module:Class", "task": "module:Class", ...}``
+(Gymnasium-style strings, imported only when the domain is used, so a Ray actor imports
+just the physics half).
 """
 from __future__ import annotations
 
-from typing import Callable, Protocol
+import importlib
+from importlib import metadata
+from typing import Any, Callable, Mapping, Protocol
 
 import numpy as np
 
@@ -31,22 +37,60 @@ class Domain(Protocol):
 
 
 _REGISTRY: dict[str, Callable[..., Domain]] = {}
+ENTRY_POINT_GROUP = "tmoc.domains"
 
 
 def register(name: str, factory: Callable[..., Domain]) -> None:
     _REGISTRY[name] = factory
 
 
+def import_string(path: str) -> Any:
+    """``"package.module:Attr"`` -> the object (ValueError naming the path if missing)."""
+    module, _, attr = str(path).partition(":")
+    try:
+        obj = importlib.import_module(module)
+        for part in attr.split(".") if attr else ():
+            obj = getattr(obj, part)
+    except (ImportError, AttributeError) as exc:
+        raise ValueError(f"entry point {path!r}: {exc}") from None
+    return obj
+
+
+def plugin_entries() -> dict[str, Mapping]:
+    """Domains installed by other packages: name -> {"physics": ..., "task": ..., ...}.
+
+    An entry point that cannot be loaded or is not such a mapping is skipped here (and
+    reported by name when that domain is asked for)."""
+    found: dict[str, Mapping] = {}
+    for ep in metadata.entry_points(group=ENTRY_POINT_GROUP):
+        try:
+            spec = ep.load()
+        except Exception:  # noqa: BLE001 - a broken plugin must not hide the others
+            continue
+        if isinstance(spec, Mapping) and "physics" in spec and "task" in spec:
+            found[ep.name] = {**spec, "distribution": getattr(ep.dist, "name", None)}
+    return found
+
+
+def is_registered(name: str) -> bool:
+    _ensure_builtin()
+    return name in _REGISTRY
+
+
 def names() -> list[str]:
     _ensure_builtin()
-    return sorted(_REGISTRY)
+    return sorted(set(_REGISTRY) | set(plugin_entries()))
 
 
 def load(name: str, **options) -> Domain:
     """The domain registered as `name`, built with `options` (e.g. n_blocks=8)."""
     _ensure_builtin()
     if name not in _REGISTRY:
-        raise ValueError(f"domain: unknown domain {name!r} (known: {', '.join(sorted(_REGISTRY))})")
+        plugins = plugin_entries()
+        if name not in plugins:
+            known = sorted(set(_REGISTRY) | set(plugins))
+            raise ValueError(f"domain: unknown domain {name!r} (known: {', '.join(known)})")
+        register(name, import_string(plugins[name]["physics"]))
     return _REGISTRY[name](**options)
 
 

@@ -57,68 +57,49 @@ def jitter_planar(rng: np.random.Generator, objects: np.ndarray, rows,
 
 
 def loaded_configuration(domain, sizes: np.ndarray, load_k: int, rng: np.random.Generator) -> Configuration:
-    """The first `load_k` blocks piled in the container, two side by side per layer."""
-    spec = domain.spec
-    config = domain.initial_configuration({"block_sizes": sizes})
-    objects = jitter_planar(rng, config.objects, range(1, 1 + spec.n_blocks))
-    c = objects[0, :2]
-    for i in range(load_k):
-        s = sizes[i]
-        lx = (1 if i % 2 else -1) * (s / 2 + spec.slot_gap / 2)
-        # Heights only order the pile (place() re-stacks each column from the floor).
-        z = spec.floor_top + (i // 2 + 0.5) * s
-        objects[1 + i, :3] = [c[0] + lx + rng.normal(0, PLACEMENT_JITTER_M / 2),
-                              c[1] + rng.normal(0, PLACEMENT_JITTER_M / 2), z]
-        objects[1 + i, 3:] = quat_from_yaw(rng.uniform(-YAW_JITTER_RAD, YAW_JITTER_RAD))
-    return domain.place(Configuration(config.robot, objects), {"block_sizes": sizes})
+    """The container's probe start for a push: kept here for its callers (tests, benchmarks)."""
+    from .container.probes import loaded_configuration as container_loaded
+
+    return container_loaded(domain, sizes, load_k, rng)
 
 
-def _act(world: GroundedWorld, domain, config, believed: dict, action: str):
+def act(world: GroundedWorld, domain, config: Configuration, believed: dict, action: str):
+    """Run `action` with Y at the believed properties; the free-space transit is skipped."""
     key = domain.action_pose(believed, config, action)
     traj = domain.action_trajectory(config, action, key)
-    # The transit to the pre-pose is free space: skip it.
     return world.execute(traj, action, start_time=domain.transit_end_time(config, action, key))
 
 
+def probe_actions(domain_name: str) -> tuple[str, ...]:
+    """The action kinds `probe` knows for a domain (empty: the domain has no probe)."""
+    domain = load(domain_name)
+    return tuple(getattr(domain, "probe_actions", ())) if hasattr(domain, "probe_trial") else ()
+
+
 def run_trial(action: str, true_size: float, believed_size: float, load_k: int,
-              rng: np.random.Generator, n_blocks: int = 8, options: dict | None = None) -> bool:
-    """One seeded trial; True when the action had its intended symbolic effect."""
-    domain = jittered_domain(rng, n_blocks=n_blocks, **(options or {}))
-    sizes = np.full(n_blocks, true_size)
-    truth = {"block_sizes": sizes}
-    believed = {"block_sizes": np.full(n_blocks, believed_size)}
-    with GroundedWorld(domain) as world:
-        if action == "push":
-            config = world.reset(loaded_configuration(domain, sizes, load_k, rng), truth)
-            out = _act(world, domain, config, believed, "push(r,c,init,goal)")
-            return all(f"is_in(b{i + 1},goal)" in out.state for i in range(load_k))
-        config = domain.initial_configuration(truth)
-        config = Configuration(config.robot, jitter_planar(rng, config.objects, range(1, 1 + n_blocks)))
-        config = world.reset(config, truth)
-        if action == "pickup":
-            b = f"b{int(rng.integers(n_blocks)) + 1}"
-            out = _act(world, domain, config, believed, f"pickup(r,{b},init)")
-            return f"is_holding(r,{b})" in out.state
-        for i in range(load_k):                    # stack: pick and place the first k blocks
-            b = f"b{i + 1}"
-            out = _act(world, domain, config, believed, f"pickup(r,{b},init)")
-            if f"is_holding(r,{b})" not in out.state:
-                return False
-            out = _act(world, domain, out.configuration, believed, f"stack(r,{b},c)")
-            config = out.configuration
-        return all(f"at_container(b{i + 1},c)" in out.state for i in range(load_k)) \
-            and "hand_empty(r)" in out.state
+              rng: np.random.Generator, n_blocks: int = 8, options: dict | None = None,
+              domain: str = "container") -> bool:
+    """One seeded trial; True when the action had its intended symbolic effect. The world
+    is the domain with jittered friction; what the trial does is the domain's
+    ``probe_trial`` (each domain knows how to set up its own actions)."""
+    world_domain = jittered_domain(rng, domain=domain, n_blocks=n_blocks, **(options or {}))
+    return bool(world_domain.probe_trial(action, true_size, believed_size, load_k, rng))
 
 
 def probe(action: str, true_size: float, believed_size: float | None = None, load_k: int = 4,
-          trials: int = 20, seed: int = 0, n_blocks: int = 8, options: dict | None = None) -> ProbeResult:
-    """Run `trials` seeded trials of `action` (pickup | stack | push)."""
-    if action not in ("pickup", "stack", "push"):
-        raise ValueError(f"action: {action!r} is not one of pickup, stack, push")
+          trials: int = 20, seed: int = 0, n_blocks: int = 8, options: dict | None = None,
+          domain: str = "container") -> ProbeResult:
+    """Run `trials` seeded trials of `action` (one of the domain's ``probe_actions``)."""
+    actions = probe_actions(domain)
+    if not actions:
+        raise ValueError(f"domain: {domain!r} has no probe")
+    if action not in actions:
+        raise ValueError(f"action: {action!r} is not one of {', '.join(actions)}")
     believed = true_size if believed_size is None else believed_size
     if not 1 <= load_k <= n_blocks:
         raise ValueError(f"load: {load_k} is outside [1, {n_blocks}]")
     # One child generator per trial: trial t's outcome does not depend on the trial count.
     children = np.random.default_rng(seed).spawn(trials)
-    wins = sum(run_trial(action, true_size, believed, load_k, rng, n_blocks, options) for rng in children)
+    wins = sum(run_trial(action, true_size, believed, load_k, rng, n_blocks, options, domain)
+               for rng in children)
     return ProbeResult(action, trials, int(wins), float(true_size), float(believed), int(load_k))

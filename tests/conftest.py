@@ -34,7 +34,8 @@ def _in_checkout(path: str) -> bool:
         return False
 
 
-sys.path[:] = [p for p in sys.path if not _in_checkout(p)]
+if os.environ.get("TMOC_TEST_SOURCE") != "1":
+    sys.path[:] = [p for p in sys.path if not _in_checkout(p)]
 
 
 def installed_origin(package: str) -> Path:

@@ -16,8 +16,7 @@ import math
 
 from coordinator.cli import UsageError
 
-ACTIONS = ("pickup", "stack", "push")
-PROBE_DOMAINS = ("container",)      # the domains sim_workers.probe knows how to set up
+ACTIONS = ("pickup", "stack", "push")   # the container's; each domain lists its own
 DEFAULT_LOAD = 4
 
 
@@ -57,16 +56,18 @@ def _check_size(flag: str, value: float) -> float:
 
 def run(args: argparse.Namespace) -> int:
     from sim_workers import domains
-    from sim_workers.probe import probe
+    from sim_workers.probe import probe, probe_actions
 
     known = domains.names()
     if args.domain not in known:
         raise UsageError(f"--domain: unknown domain {args.domain!r} (known: {', '.join(known)})")
-    if args.domain not in PROBE_DOMAINS:
+    actions = probe_actions(args.domain)
+    if not actions:
+        available = [d for d in known if probe_actions(d)]
         raise UsageError(f"--domain: probing is not available for {args.domain!r} "
-                         f"(available: {', '.join(PROBE_DOMAINS)})")
-    if args.action not in ACTIONS:
-        raise UsageError(f"--action: {args.action!r} is not one of {', '.join(ACTIONS)}")
+                         f"(available: {', '.join(available)})")
+    if args.action not in actions:
+        raise UsageError(f"--action: {args.action!r} is not one of {', '.join(actions)}")
     true_size = _check_size("--true-size", args.true_size)
     believed = true_size if args.believed_size is None else _check_size("--believed-size", args.believed_size)
     n_blocks = domains.load(args.domain).spec.n_blocks
@@ -78,7 +79,7 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError(f"--seed: {args.seed} must not be negative")
 
     result = probe(args.action, true_size, believed, load_k=args.load, trials=args.trials,
-                   seed=args.seed, n_blocks=n_blocks)
+                   seed=args.seed, n_blocks=n_blocks, domain=args.domain)
     if args.json:
         out = {"domain": args.domain, **result.to_dict(), "seed": args.seed, "n_blocks": n_blocks}
         print(json.dumps(out, sort_keys=True))

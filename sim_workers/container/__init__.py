@@ -9,7 +9,7 @@ import numpy as np
 from .. import domains
 from ..configuration import Configuration
 from ..properties import PropertyError, block_properties
-from . import scene, state_mapping, trajectories
+from . import probes, scene, state_mapping, trajectories
 from .spec import ContainerSpec
 
 
@@ -144,6 +144,14 @@ class ContainerDomain:
         45 mm truth), so they stay reported but out of the likelihood.
         """
         return np.array([0]), np.array([0.002])
+
+    # -- probe (tmoc probe, T* estimates) --------------------------------------------
+    probe_actions = probes.PROBE_ACTIONS
+
+    def probe_trial(self, action: str, true_size: float, believed_size: float, load_k: int,
+                    rng: np.random.Generator) -> bool:
+        """One seeded trial of `action` in this (already jittered) world."""
+        return probes.probe_trial(self, action, true_size, believed_size, load_k, rng)
 
     def check_action(self, action: str) -> None:
         name, args = state_mapping.parse_action(action)

@@ -90,3 +90,15 @@ def test_bad_session_specs_get_4xx_naming_the_field(client):
     obs = {"configuration": {"robot": [0, 0, 0.2, 0, 0.05], "objects": [[0, 0, 0, 0, 0, 0, 1]]}}
     r = client.post("/v1/sessions", json={"particles": 2, "observation": obs})
     assert r.status_code == 409 and "configuration.objects" in r.json()["detail"]   # not this scene
+
+
+def test_domains_are_listed_over_http(client):
+    r = client.get("/v1/domains")
+    assert r.status_code == 200, r.text
+    by_name = {d["name"]: d for d in r.json()["items"]}
+    assert "container" in by_name and r.json()["total"] == len(by_name)
+    one = client.get("/v1/domains/container").json()
+    assert one == by_name["container"]
+    assert one["contexts"][:2] == [["pickup", 0], ["stack", 0]] and one["utility"]["push"] == 30.0
+    r = client.get("/v1/domains/kitchen")
+    assert r.status_code == 404 and "kitchen" in r.json()["detail"]

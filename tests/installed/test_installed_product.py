@@ -272,3 +272,44 @@ def test_tmoc_serve_answers_health(venv):
             os.killpg(proc.pid, signal.SIGKILL)      # Ray's helpers share the group
         except (ProcessLookupError, PermissionError):
             pass
+
+
+# -- a domain plugin from outside the package (issue 13) ----------------------------------
+PLUGIN = REPO / "docs" / "examples" / "tmoc-toy-domain"
+
+
+@pytest.fixture(scope="module")
+def with_plugin(venv, tmp_path_factory) -> dict:
+    """The example plugin pip-installed into the fresh venv (a copy: pip builds in place)."""
+    src = tmp_path_factory.mktemp("plugin") / "tmoc-toy-domain"
+    shutil.copytree(PLUGIN, src, ignore=_TREE_IGNORE)
+    proc = run_in(venv, [venv["python"], "-m", "pip", "install", "-q", "--no-deps", str(src)], timeout=600)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    return venv
+
+
+def test_the_plugin_is_found_through_its_entry_point(with_plugin):
+    proc = run_in(with_plugin, [with_plugin["tmoc"], "domains", "--json"])
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    found = json.loads(proc.stdout)["domains"]
+    assert {"container", "toy_tray"} <= set(found)
+    toy = found["toy_tray"]
+    assert toy["source"] == "plugin (tmoc-toy-domain)" and toy["utility"]["pickup"] == 10.0
+    assert toy["physics"] == "tmoc_toy_domain.physics:ToyTrayPhysics"
+
+
+def test_the_plugin_passes_check_domain_with_ray_actors(with_plugin):
+    proc = run_in(with_plugin, [with_plugin["tmoc"], "check-domain", "toy_tray"], timeout=600)
+    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
+    assert "toy_tray: 7/7 checks passed" in proc.stdout
+
+
+def test_the_plugin_runs_one_episode(with_plugin):
+    out = with_plugin["cwd"] / "toy"
+    proc = run_in(with_plugin, [with_plugin["tmoc"], "run", "--domain", "toy_tray", "--particles", "4",
+                                "--episodes", "1", "--max-steps", "8", "--seed", "2", "--no-progress",
+                                "--out", str(out)], timeout=600)
+    assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-4000:]
+    result = json.loads((out / "result.json").read_text())
+    assert result["config"]["domain"] == "toy_tray" and len(result["episodes"]) == 1
+    assert 0 < result["episodes"][0]["actions"] <= 8

@@ -1,0 +1,229 @@
+"""Conformance checks of a registered domain (in the spirit of Gymnasium's ``check_env``).
+
+``tmoc check-domain NAME`` and the test suite (parametrised over every registered
+domain) run the same checks: each is a small function that raises ``AssertionError`` (or
+any error) with a message saying what is wrong; ``check_domain`` runs them all and
+reports each by name.
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+
+from sim_workers.grounded_world import GroundedWorld
+from sim_workers.properties import PropertyError
+
+from .domains import Domain, load
+from .session import WORKSPACE
+
+
+@dataclass(frozen=True)
+class CheckResult:
+    name: str
+    ok: bool
+    detail: str
+    seconds: float
+
+    def to_dict(self) -> dict:
+        return {"check": self.name, "ok": self.ok, "detail": self.detail,
+                "seconds": round(self.seconds, 3)}
+
+
+def _truth(d: Domain) -> dict:
+    return d.physics.true_properties()
+
+
+def _sized(d: Domain, size: float) -> dict:
+    return {"block_sizes": np.full(d.n_blocks, float(size))}
+
+
+def _prior(d: Domain) -> tuple[float, float]:
+    sp = d.physics.spec
+    return float(sp.prior_low), float(sp.prior_high)
+
+
+def _first_actions(d: Domain, k: int = 3) -> list[tuple[frozenset, str]]:
+    """(state, action) for the first `k` actions of the optimistic plan, states by apply()."""
+    task = d.task
+    state = task.initial_state(d.n_blocks)
+    plan = task.plan(state, task.optimistic_transition(d.n_blocks))
+    out = []
+    for action in plan.actions[:k]:
+        out.append((state, action))
+        state = task.apply(state, action)
+    return out
+
+
+def check_initial_state(d: Domain) -> str:
+    """Y^-1 of the initial configuration is the task's initial state, canonical, no goal."""
+    config = d.physics.initial_configuration(_truth(d))
+    assert len(config.objects) == len(d.physics.object_names), \
+        f"{len(config.objects)} object rows for objects {d.physics.object_names}"
+    state = d.physics.symbolic_state(config)
+    assert d.task.parse_state(sorted(state)) == state, "Y^-1 state is not canonical"
+    assert state == d.task.initial_state(d.n_blocks), \
+        f"Y^-1 of the initial configuration {sorted(state)} != task.initial_state"
+    assert not d.task.is_goal(state), "the initial state is already a goal"
+    return f"{len(state)} atoms"
+
+
+def check_place_keeps_state(d: Domain) -> str:
+    """Re-grounding under any hypothesis across the prior keeps Y^-1."""
+    low, high = _prior(d)
+    config = d.physics.initial_configuration(_truth(d))
+    state = d.physics.symbolic_state(config)
+    for size in np.linspace(low, high, 5):
+        placed = d.physics.place(config, _sized(d, size))
+        got = d.physics.symbolic_state(placed)
+        assert got == state, f"place() at size {size:.4f} changes Y^-1: {sorted(got ^ state)}"
+    return "5 sizes across the prior"
+
+
+def check_refused_properties(d: Domain) -> str:
+    """Bad properties are refused with a message naming the field, before any change."""
+    low, high = _prior(d)
+    cases = [({"block_sizes": np.full(d.n_blocks, np.nan)}, "block_sizes"),
+             ({"block_sizes": np.full(d.n_blocks, high * 10)}, "block_sizes"),
+             ({"block_sizes": np.full(d.n_blocks, low), "weight": 1.0}, "weight")]
+    for props, field in cases:
+        try:
+            d.physics.properties(props)
+        except PropertyError as exc:
+            assert field in str(exc), f"refusal of {field} does not name it: {exc}"
+        else:
+            raise AssertionError(f"properties {sorted(props)} with a bad {field} were accepted")
+    return f"{len(cases)} refusals name their field"
+
+
+def _outcome_bits(world: GroundedWorld, d: Domain, config, props: dict, action: str) -> bytes:
+    placed = world.reset(config, props)
+    key = d.physics.action_pose(props, placed, action)
+    traj = d.physics.action_trajectory(placed, action, key)
+    t0 = d.physics.transit_end_time(placed, action, key)
+    return world.execute(traj, action, start_time=t0).configuration.to_array().tobytes()
+
+
+def check_determinism(d: Domain, ray_actors: bool = True) -> str:
+    """The same (configuration, properties, action) gives the same bits in fresh worlds,
+    in a world with a past and (optionally) on two Ray actors."""
+    props = _truth(d)
+    config = d.physics.initial_configuration(props)
+    (_, action), *rest = _first_actions(d)
+    with GroundedWorld(d.physics) as a, GroundedWorld(d.physics) as b:
+        first = _outcome_bits(a, d, config, props, action)
+        assert _outcome_bits(b, d, config, props, action) == first, "two fresh worlds differ"
+        if rest:
+            _outcome_bits(b, d, config, props, rest[0][1] if rest[0][1] != action else action)
+        assert _outcome_bits(b, d, config, props, action) == first, "a world with a past differs"
+    if not ray_actors:
+        return f"{action}: fresh and with a past"
+    import ray
+
+    from sim_workers.shard import remote_shard
+
+    from .fanout import init_ray
+
+    init_ray()
+    Actor = remote_shard(num_cpus=0)
+    actors = [Actor.remote(d.name, dict(d.options)) for _ in range(2)]
+    try:
+        key = d.physics.action_pose(props, config, action)
+        traj = d.physics.action_trajectory(config, action, key)
+        t0 = d.physics.transit_end_time(config, action, key)
+        sizes = np.asarray(props["block_sizes"], dtype=np.float64)[None, :]
+        outs = ray.get([x.simulate.remote(config.to_array(), sizes, action, traj, t0) for x in actors])
+        assert np.array_equal(outs[0]["configurations"], outs[1]["configurations"]), "two Ray actors differ"
+        assert outs[0]["configurations"][0].tobytes() == first, "a Ray actor differs from in-process"
+    finally:
+        for x in actors:
+            ray.kill(x)
+    return f"{action}: fresh, with a past, two Ray actors"
+
+
+def check_planner(d: Domain) -> str:
+    """The plan reaches the goal; its expected utility is the Python EU of its actions and
+    at least that of any random valid plan; every context is one the domain lists."""
+    task, n = d.task, d.n_blocks
+    rng = np.random.default_rng(0)
+    contexts = set(task.contexts(n))
+    state0 = task.initial_state(n)
+    for trial in range(3):
+        T = task.optimistic_transition(n) if trial == 0 else _random_transition(task.optimistic_transition(n), rng)
+        plan = task.plan(state0, T)
+        state = state0
+        for action in plan.actions:
+            ctx = task.context_of(state, action)
+            assert ctx is None or tuple(ctx) in contexts, f"context {ctx} of {action} not listed"
+            state = task.apply(state, action)
+        assert task.is_goal(state), f"plan {plan.actions} does not reach the goal"
+        eu = task.expected_utility(state0, plan.actions, T)
+        assert abs(eu - plan.expected_utility) < 1e-6, f"plan EU {plan.expected_utility} != Python EU {eu}"
+        assert plan.optimal, "optimality not proven"
+        for _ in range(10):
+            other = task.satisficing(state0, rng=rng, transition=T)
+            assert other.expected_utility <= plan.expected_utility + 1e-6, \
+                f"a random plan beats the optimum: {other.expected_utility} > {plan.expected_utility}"
+    return f"3 transition models, {len(plan.actions)} actions"
+
+
+def _random_transition(template: dict, rng: np.random.Generator) -> dict:
+    return {k: (float(rng.uniform(0.3, 1.0)) if not isinstance(v, list)
+                else [float(p) for p in rng.uniform(0.3, 1.0, len(v))]) for k, v in template.items()}
+
+
+def check_y(d: Domain) -> str:
+    """Y is finite and inside the motion planner's workspace at the prior's bounds."""
+    low, high = _prior(d)
+    workspace = getattr(d.physics, "workspace", WORKSPACE)
+    config = d.physics.initial_configuration(_truth(d))
+    n = 0
+    for size in (low, high):
+        for state, action in _first_actions(d, 1):
+            pose = d.physics.action_pose(_sized(d, size), config, action)
+            assert np.all(np.isfinite(pose)), f"Y({action}) at {size} is not finite: {pose}"
+            assert np.all(pose[:3] >= workspace.low[:3]) and np.all(pose[:3] <= workspace.high[:3]), \
+                f"Y({action}) at {size} = {pose[:3]} is outside the workspace"
+            n += 1
+    return f"{n} poses"
+
+
+def check_measurements(d: Domain) -> str:
+    """The measurement vector has a fixed length and the likelihood's channels index it."""
+    config = d.physics.initial_configuration(_truth(d))
+    m = d.physics.measurements(config)
+    assert m.ndim == 1 and np.all(np.isfinite(m)), "measurements not a finite vector"
+    idx, sigma = d.physics.measurement_model()
+    assert len(idx) == len(sigma), "channel indices and sigmas differ in length"
+    assert np.all((np.asarray(idx) >= 0) & (np.asarray(idx) < len(m))), "a channel index is out of range"
+    assert np.all(np.asarray(sigma) > 0), "a weighed channel has no positive sigma"
+    return f"{len(m)} values, {len(idx)} weighed"
+
+
+CHECKS: dict[str, Callable[[Domain], str]] = {
+    "initial_state": check_initial_state,
+    "place_keeps_state": check_place_keeps_state,
+    "refused_properties": check_refused_properties,
+    "determinism": check_determinism,
+    "planner": check_planner,
+    "y_in_workspace": check_y,
+    "measurements": check_measurements,
+}
+
+
+def check_domain(name: str, *, ray_actors: bool = True, **options) -> list[CheckResult]:
+    """Run every check on domain `name`; one result per check (never raises for a
+    failed check, so a report lists them all)."""
+    d = load(name, **options)
+    results = []
+    for check, fn in CHECKS.items():
+        t0 = time.perf_counter()
+        try:
+            detail = fn(d, ray_actors) if fn is check_determinism else fn(d)
+            results.append(CheckResult(check, True, detail, time.perf_counter() - t0))
+        except Exception as exc:  # noqa: BLE001 - each failure is reported by name
+            results.append(CheckResult(check, False, f"{type(exc).__name__}: {exc}",
+                                       time.perf_counter() - t0))
+    return results

@@ -1,0 +1,59 @@
+"""The container's probe trials (``tmoc probe --domain container``): how each action kind
+is set up in a true world and judged through Y^-1."""
+from __future__ import annotations
+
+import numpy as np
+
+from ..configuration import Configuration, quat_from_yaw
+from ..grounded_world import GroundedWorld
+from ..probe import PLACEMENT_JITTER_M, YAW_JITTER_RAD, act, jitter_planar
+
+PROBE_ACTIONS = ("pickup", "stack", "push")
+
+
+def loaded_configuration(domain, sizes: np.ndarray, load_k: int, rng: np.random.Generator) -> Configuration:
+    """The first `load_k` blocks piled in the container, two side by side per layer."""
+    spec = domain.spec
+    config = domain.initial_configuration({"block_sizes": sizes})
+    objects = jitter_planar(rng, config.objects, range(1, 1 + spec.n_blocks))
+    c = objects[0, :2]
+    for i in range(load_k):
+        s = sizes[i]
+        lx = (1 if i % 2 else -1) * (s / 2 + spec.slot_gap / 2)
+        # Heights only order the pile (place() re-stacks each column from the floor).
+        z = spec.floor_top + (i // 2 + 0.5) * s
+        objects[1 + i, :3] = [c[0] + lx + rng.normal(0, PLACEMENT_JITTER_M / 2),
+                              c[1] + rng.normal(0, PLACEMENT_JITTER_M / 2), z]
+        objects[1 + i, 3:] = quat_from_yaw(rng.uniform(-YAW_JITTER_RAD, YAW_JITTER_RAD))
+    return domain.place(Configuration(config.robot, objects), {"block_sizes": sizes})
+
+
+def probe_trial(domain, action: str, true_size: float, believed_size: float, load_k: int,
+                rng: np.random.Generator) -> bool:
+    """pickup: one random block from the row; stack: pick and place the first `load_k`
+    blocks; push: the container loaded with `load_k` blocks to goal."""
+    n_blocks = domain.spec.n_blocks
+    sizes = np.full(n_blocks, true_size)
+    truth = {"block_sizes": sizes}
+    believed = {"block_sizes": np.full(n_blocks, believed_size)}
+    with GroundedWorld(domain) as world:
+        if action == "push":
+            config = world.reset(loaded_configuration(domain, sizes, load_k, rng), truth)
+            out = act(world, domain, config, believed, "push(r,c,init,goal)")
+            return all(f"is_in(b{i + 1},goal)" in out.state for i in range(load_k))
+        config = domain.initial_configuration(truth)
+        config = Configuration(config.robot, jitter_planar(rng, config.objects, range(1, 1 + n_blocks)))
+        config = world.reset(config, truth)
+        if action == "pickup":
+            b = f"b{int(rng.integers(n_blocks)) + 1}"
+            out = act(world, domain, config, believed, f"pickup(r,{b},init)")
+            return f"is_holding(r,{b})" in out.state
+        for i in range(load_k):                    # stack: pick and place the first k blocks
+            b = f"b{i + 1}"
+            out = act(world, domain, config, believed, f"pickup(r,{b},init)")
+            if f"is_holding(r,{b})" not in out.state:
+                return False
+            out = act(world, domain, out.configuration, believed, f"stack(r,{b},c)")
+            config = out.configuration
+        return all(f"at_container(b{i + 1},c)" in out.state for i in range(load_k)) \
+            and "hand_empty(r)" in out.state

@@ -1,0 +1,106 @@
+"""The domain registry and conformance checks, parametrised over every registered domain
+(issue 13): what `tmoc domains` lists and `tmoc check-domain` checks."""
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from coordinator import domains
+from coordinator.cli import main
+from coordinator.conformance import CHECKS, check_domain
+from coordinator.transition_model import TransitionModel
+from planner.domain import UnknownAction
+from sim_workers import domains as physics_registry
+from sim_workers.container import ContainerDomain
+
+NAMES = domains.names()
+
+
+def test_the_built_in_domains_are_registered():
+    assert "container" in NAMES
+    assert set(domains.BUILTIN) <= set(NAMES)
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_every_domain_passes_the_conformance_checks(name, ray_cluster):
+    results = check_domain(name)
+    assert [r.name for r in results] == list(CHECKS)
+    failed = {r.name: r.detail for r in results if not r.ok}
+    assert not failed, failed
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_unknown_actions_are_errors_never_a_silent_none(name):
+    task = domains.task_half(name)
+    state = task.initial_state(4)
+    for bad in ("fly(r,b1)", "pickup(r,b1)", "not an action"):
+        with pytest.raises(UnknownAction):
+            task.context_of(state, bad)
+    t = TransitionModel(4, contexts=task.contexts(4), context_fn=task.context_of)
+    with pytest.raises(ValueError, match="context 9"):
+        t.probability(task.contexts(4)[-1][0], 9)
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_domains_json_describes_each_domain(name, capsys):
+    assert main(["domains", "--json"]) == 0
+    d = json.loads(capsys.readouterr().out)["domains"][name]
+    assert d["name"] == name and d["objects"] and d["actions"]
+    assert d["properties"][0]["unit"] == "m" and d["properties"][0]["prior"]["low"] < d["properties"][0]["prior"]["high"]
+    assert ["pickup", 0] in d["contexts"] and d["utility"]["fail"] == 50.0
+    assert d["measurements"]["count"] >= len(d["measurements"]["weighed"]) >= 1
+
+
+class _Drifting(ContainerDomain):
+    """A broken physics half: re-grounding moves block 1 off the row (Y^-1 changes)."""
+
+    name = "broken_drift"
+
+    def place(self, config, props):
+        placed = super().place(config, props)
+        objects = placed.objects.copy()
+        objects[1, 0] += 0.3
+        return type(placed)(placed.robot, objects)
+
+
+def test_check_domain_names_the_failed_check_and_exits_1(capsys, monkeypatch):
+    physics_registry.register("broken_drift", _Drifting)
+    monkeypatch.setitem(domains.BUILTIN, "broken_drift", domains.DomainSpec(
+        "broken_drift", "tests:unused", "planner.container:ContainerTask", "a broken domain"))
+    try:
+        assert main(["check-domain", "broken_drift", "--no-ray"]) == 1
+        out = capsys.readouterr().out
+        assert "FAIL place_keeps_state" in out and "failed: place_keeps_state" in out
+        assert main(["check-domain", "container", "--no-ray"]) == 0
+        assert main(["check-domain", "nope"]) == 2
+    finally:
+        physics_registry._REGISTRY.pop("broken_drift", None)
+
+
+def test_a_second_domain_with_the_same_action_names_learns_its_own_contexts():
+    """Reusing pickup/stack/push must not be learned with the container's contexts (which
+    count `at_container` atoms and would put every stack in context 0)."""
+    class Tower:
+        name = "tower"
+
+        def contexts(self, n):
+            return (("pickup", 0),) + tuple(("stack", k) for k in range(n)) + \
+                tuple(("push", k) for k in range(1, n + 1))
+
+        def context_of(self, state, action):
+            if action.startswith("stack"):
+                return ("stack", sum(a.startswith("on(") for a in state))
+            if action.startswith("push"):
+                return ("push", sum(a.startswith("on(") for a in state))
+            if action.startswith("pickup"):
+                return ("pickup", 0)
+            raise UnknownAction(action)
+
+    task = Tower()
+    t = TransitionModel(4, contexts=task.contexts(4), context_fn=task.context_of)
+    tower3 = frozenset({"on(b1,start)", "on(b2,b1)", "on(b3,b2)", "is_holding(r,b4)"})
+    t.observe_transition(tower3, "stack(r,b4,tower)", success=False)
+    assert t.probability("stack", 3) == 0.5 and t.probability("stack", 0) == 1.0
+    assert np.isclose(t.to_planner()["stack"][3], 0.5)
