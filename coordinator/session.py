@@ -181,7 +181,8 @@ class Session:
                 except MotionPlanningError:
                     continue
             # 200 RRT* iterations, at most 600 to find a first path (~0.5 s).
-            return plan_transit(start, pre[:4], checker, WORKSPACE, seed=int(self.rng.integers(2**31)),
+            workspace = getattr(self.domain, "workspace", WORKSPACE)   # a domain may need more room
+            return plan_transit(start, pre[:4], checker, workspace, seed=int(self.rng.integers(2**31)),
                                 iterations=200, max_iterations=600, shortcut=False, resolution=0.05)
         except MotionPlanningError as exc:
             self.stats.transit_fallbacks.append(str(exc)[:200])
