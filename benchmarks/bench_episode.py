@@ -1,6 +1,6 @@
 """Wall time of one TMOC episode on local Ray, split into physics, planning and Ray overhead.
 
-    python benchmarks/bench_episode.py [--particles 100] [--quick]
+    python benchmarks/bench_episode.py [--domain NAME] [--particles 100] [--quick]
 
 Particle-actions per second over the episode are printed with the physics share of the
 episode's wall time, and against pybullet stepping the resting scene for the same number of
@@ -23,13 +23,14 @@ from coordinator.run_config import RunConfig  # noqa: E402
 from coordinator.runner import run  # noqa: E402
 
 
-def raw_steps_per_second(steps: int) -> float:
-    """pybullet stepping of the container scene (blocks resting, gripper held), one core."""
+def raw_steps_per_second(args: tuple[str, int]) -> float:
+    """pybullet stepping of the domain's scene (blocks resting, gripper held), one core."""
     import pybullet as pb
 
     from sim_workers.domains import load
 
-    d = load("container")
+    domain, steps = args
+    d = load(domain)
     c = pb.connect(pb.DIRECT)
     d.build(c, d.true_properties())
     t0 = time.perf_counter()
@@ -42,12 +43,13 @@ def raw_steps_per_second(steps: int) -> float:
 
 def main() -> None:
     ap = argparse.ArgumentParser()
+    ap.add_argument("--domain", default="container", help="a registered domain (tmoc domains)")
     ap.add_argument("--particles", type=int, default=100)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--quick", action="store_true", help="24 particles")
     args = ap.parse_args()
     n = 24 if args.quick else args.particles
-    cfg = RunConfig(agent="tmoc", particles=n, episodes=1, seed=args.seed)
+    cfg = RunConfig(domain=args.domain, agent="tmoc", particles=n, episodes=1, seed=args.seed)
     t0 = time.perf_counter()
     result = run(cfg)
     wall = time.perf_counter() - t0
@@ -58,10 +60,10 @@ def main() -> None:
     planning = ep["planning_s"]
     real = ep["wall_s"] - physics - planning
     with mp.Pool(2) as pool:
-        raw = sum(pool.map(raw_steps_per_second, [4000, 4000]))
+        raw = sum(pool.map(raw_steps_per_second, [(args.domain, 4000)] * 2))
     steps_per_pa = rt["particle_steps"] / pa   # measured in this run
     raw_pa = raw / steps_per_pa
-    print(f"particles={n} actions={ep['actions']} loads={ep['loads']} utility={ep['utility']}")
+    print(f"domain={args.domain} particles={n} actions={ep['actions']} loads={ep['loads']} utility={ep['utility']}")
     print(f"episode_wall_s={ep['wall_s']:.2f} (run incl. Ray start {wall:.2f})")
     print(f"  particle physics (Ray wait) {physics:.2f} s, planning (clingo + OMPL) {planning:.2f} s, "
           f"real world + Y + bookkeeping {real:.2f} s")
