@@ -234,7 +234,8 @@ class Session:
 
     def _reweight(self, before: Observation, step: PendingStep, observation: Observation) -> dict:
         t0 = time.perf_counter()
-        sizes = np.ascontiguousarray(self.particle_sizes())
+        # The wire carries rows of L (N, D); each shard expands a row with the domain.
+        sizes = np.ascontiguousarray(self.belief.particles)
         start = before.configuration.to_array()
         if self.config.likelihood == "replay":
             res = self.pool.simulate(start, sizes, step.action, step.trajectory, step.transit_end)

@@ -47,7 +47,9 @@ class Shard:
         """Run `action` once per particle.
 
         start:      (5 + 7M,) flat observed configuration (re-grounded per particle)
-        sizes:      (B, n_blocks) block sizes, one row per particle
+        sizes:      (B, D) rows of L, one per particle (the domain's ``props_from_row``
+                    expands a row; for block domains D is 1, one size for every block,
+                    or n_blocks)
         trajectory: (T, 6) shared by every particle ("replay") or (B, T, 6) one each ("paper")
         start_time: where to start in the trajectory (scalar, or (B,) one per particle)
         Returns arrays: configurations (B, 5 + 7M), states (B,) text, measurements (B, P),
@@ -63,7 +65,7 @@ class Shard:
         configs, states, meas, steps = [], [], [], []
         for b, row in enumerate(sizes):
             world = self.worlds[b % len(self.worlds)]
-            world.reset(config, {"block_sizes": row})
+            world.reset(config, self._props(row))
             out = world.execute(traj if shared else traj[b], action, start_time=float(starts[b]))
             configs.append(out.configuration.to_array())
             states.append(encode_state(out.state))
@@ -71,6 +73,12 @@ class Shard:
             steps.append(out.steps)
         return {"configurations": np.array(configs), "states": np.array(states, dtype=object),
                 "measurements": np.array(meas), "steps": np.array(steps, dtype=np.int64)}
+
+    def _props(self, row: np.ndarray) -> dict:
+        expand = getattr(self.domain, "props_from_row", None)
+        if expand is not None:
+            return expand(row)
+        return {"block_sizes": np.broadcast_to(row, (self.domain.spec.n_blocks,))}
 
     def simulate_batch(self, start: np.ndarray, sizes: np.ndarray, action: str,
                        trajectory: np.ndarray, start_time=0.0) -> dict:

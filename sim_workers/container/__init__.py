@@ -55,6 +55,11 @@ class ContainerDomain:
             raise PropertyError("properties: expected a mapping with 'block_sizes'")
         return block_properties(props, self.spec.n_blocks, self.spec.density)
 
+    def props_from_row(self, row: np.ndarray) -> dict:
+        """A row of L (what the wire carries: one size for every block, or one per block)
+        as the properties a world is built from."""
+        return {"block_sizes": np.broadcast_to(np.asarray(row, dtype=np.float64), (self.spec.n_blocks,))}
+
     # -- physics ---------------------------------------------------------------------
     def build(self, client: int, props: dict) -> scene.SceneHandles:
         p = self.properties(props)
