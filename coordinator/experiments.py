@@ -105,13 +105,17 @@ class Spec:
     probe_seed: int = 0
     scale: str = "default"
     settings: list[Setting] = field(default_factory=list)
+    domain: str = "container"
 
     def to_dict(self) -> dict:
-        return {"name": self.name, "runs": self.runs, "episodes": self.episodes,
-                "particles": self.particles, "seed": self.seed, "max_steps": self.max_steps,
-                "true_size": self.true_size, "milestones": list(self.milestones),
-                "probe_trials": self.probe_trials, "probe_seed": self.probe_seed,
-                "scale": self.scale}
+        out = {"name": self.name, "runs": self.runs, "episodes": self.episodes,
+               "particles": self.particles, "seed": self.seed, "max_steps": self.max_steps,
+               "true_size": self.true_size, "milestones": list(self.milestones),
+               "probe_trials": self.probe_trials, "probe_seed": self.probe_seed,
+               "scale": self.scale}
+        if self.domain != "container":     # the committed container summaries stay valid
+            out["domain"] = self.domain
+        return out
 
 
 def particle_counts(n_max: int) -> list[int]:
@@ -151,8 +155,8 @@ def run_seed(seed: int, experiment: int, setting: int, run: int) -> int:
 def run_config(spec: Spec, k: int, r: int) -> RunConfig:
     """RunConfig of run r of setting k (pydantic ValidationError on bad values)."""
     s = spec.settings[k]
-    fields = {"particles": spec.particles, "episodes": spec.episodes, "max_steps": spec.max_steps,
-              "true_size": spec.true_size,
+    fields = {"domain": spec.domain, "particles": spec.particles, "episodes": spec.episodes,
+              "max_steps": spec.max_steps, "true_size": spec.true_size,
               "seed": run_seed(spec.seed, EXPERIMENTS.index(spec.name), k, r)}
     fields.update(s.overrides)
     if fields["agent"] in ("tmp_rl", "toep"):
@@ -174,11 +178,25 @@ def run_cost(config: RunConfig) -> float:
 
 # --------------------------------------------------------------------------- T*
 
-def probe_jobs(n_blocks: int) -> list[tuple[str, int]]:
+def probe_jobs(n_blocks: int, domain: str = "container") -> list[tuple[str, int]]:
     """(action, load) of every probe T* needs: pickup; stack of the first k blocks, k =
-    1..n; push with k blocks loaded, k = 1..n."""
+    1..n; push with k blocks loaded, k = 1..n. A domain with other probe semantics says
+    so in its physics half (`t_star_probe_jobs`)."""
+    custom = _t_star_hooks(domain)[0]
+    if custom is not None:
+        return custom(n_blocks)
     return ([("pickup", 1)] + [("stack", k) for k in range(1, n_blocks + 1)]
             + [("push", k) for k in range(1, n_blocks + 1)])
+
+
+def _t_star_hooks(domain: str):
+    """(probe_jobs, from_probes) of a domain's physics half, or (None, None): the container's."""
+    if domain == "container":
+        return None, None
+    from sim_workers.domains import load
+
+    phys = load(domain)
+    return getattr(phys, "t_star_probe_jobs", None), getattr(phys, "t_star_from_probes", None)
 
 
 def true_T_from_probes(successes: dict[tuple[str, int], int], trials: int, n_blocks: int) -> dict:
@@ -204,8 +222,11 @@ def true_T_from_probes(successes: dict[tuple[str, int], int], trials: int, n_blo
 
 
 def _t_star_params(spec: Spec, n_blocks: int = 8) -> dict:
-    return {"true_size": spec.true_size, "n_blocks": n_blocks, "trials": spec.probe_trials,
-            "seed": spec.probe_seed}
+    params = {"true_size": spec.true_size, "n_blocks": n_blocks, "trials": spec.probe_trials,
+              "seed": spec.probe_seed}
+    if spec.domain != "container":          # (cached container estimates stay valid)
+        params["domain"] = spec.domain
+    return params
 
 
 def cached_true_T(out: Path, params: dict) -> dict | None:
@@ -226,8 +247,9 @@ def _probe_remote():
 
     @ray.remote(num_cpus=1)
     def probe_task(action: str, true_size: float, load_k: int, trials: int, seed: int,
-                   n_blocks: int) -> int:
-        return probe(action, true_size, true_size, load_k, trials, seed, n_blocks).successes
+                   n_blocks: int, domain: str = "container") -> int:
+        return probe(action, true_size, true_size, load_k, trials, seed, n_blocks,
+                     domain=domain).successes
 
     return probe_task
 
@@ -235,17 +257,21 @@ def _probe_remote():
 def submit_probes(params: dict) -> list:
     """Submit every probe of T* as a Ray task (one CPU each); refs in probe_jobs order."""
     task = _probe_remote()
-    return [task.remote(a, params["true_size"], k, params["trials"], params["seed"], params["n_blocks"])
-            for a, k in probe_jobs(params["n_blocks"])]
+    domain = params.get("domain", "container")
+    return [task.remote(a, params["true_size"], k, params["trials"], params["seed"], params["n_blocks"],
+                        domain)
+            for a, k in probe_jobs(params["n_blocks"], domain)]
 
 
 def write_true_T(out: Path, params: dict, counts: Sequence[int]) -> dict:
-    jobs = probe_jobs(params["n_blocks"])
+    domain = params.get("domain", "container")
+    jobs = probe_jobs(params["n_blocks"], domain)
     successes = dict(zip(jobs, (int(c) for c in counts)))
+    from_probes = _t_star_hooks(domain)[1] or true_T_from_probes
     data = {"params": _jsonable(params),
-            "transition": true_T_from_probes(successes, params["trials"], params["n_blocks"]),
+            "transition": from_probes(successes, params["trials"], params["n_blocks"]),
             "successes": {f"{a}:{k}": successes[(a, k)] for a, k in jobs},
-            "method": " ".join(true_T_from_probes.__doc__.split())}
+            "method": " ".join((from_probes.__doc__ or "").split())}
     _write_atomic(Path(out) / "true_T.json", json.dumps(data, indent=2))
     return data
 
@@ -282,20 +308,22 @@ class Optimality:
     its expected utility equals the planner's optimum (ties count: 5+3 and 3+5 are worth
     the same, and so may other splits be)."""
 
-    def __init__(self, transition: dict, costs: dict, n_blocks: int) -> None:
-        from planner import symbolic, task_planner
+    def __init__(self, transition: dict, costs: dict, n_blocks: int, domain: str = "container") -> None:
+        from .domains import task_half
 
+        self.task = task_half(domain)
         self.T, self.costs, self.n_blocks = transition, costs, n_blocks
-        self.state = symbolic.initial_state(n_blocks)
-        best = task_planner.plan(self.state, transition, costs)
+        self.state = self.task.initial_state(n_blocks)
+        best = self.task.plan(self.state, transition, costs)
         self.best_loads = list(best.loads)
         self.best_value = float(best.expected_utility)
+        self._actions_for = getattr(self.task, "actions_for_loads", None) \
+            or (lambda n, loads: load_actions(loads))
         self._cache: dict[tuple[int, ...], bool] = {}
 
     def value(self, loads: Sequence[int]) -> float:
-        from planner import task_planner
-
-        return task_planner.expected_utility(self.state, load_actions(loads), self.T, self.costs)
+        return self.task.expected_utility(self.state, self._actions_for(self.n_blocks, loads),
+                                          self.T, self.costs)
 
     def __call__(self, loads: Sequence[int]) -> bool | None:
         key = tuple(int(k) for k in loads)
@@ -766,9 +794,10 @@ def summary_table(summary: dict) -> str:
 
 
 def write_outputs(spec: Spec, out: Path, t_star: dict) -> dict:
-    from .run_config import Costs
+    from .domains import task_half
 
-    optimal = Optimality(t_star["transition"], Costs().model_dump(), t_star["params"]["n_blocks"])
+    optimal = Optimality(t_star["transition"], dict(task_half(spec.domain).default_costs),
+                         t_star["params"]["n_blocks"], spec.domain)
     rows, arrays = _rows(spec, out, optimal)
     summary = summarize(spec, arrays, optimal)
     summary["true_T"] = t_star["transition"]

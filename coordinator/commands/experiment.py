@@ -31,6 +31,7 @@ def register(sub) -> None:
                      f"--scale paper: {PAPER_SCALE['runs']} runs x {PAPER_SCALE['episodes']} "
                      f"episodes, N {PAPER_SCALE['particles']}. Explicit flags win over either."))
     p.add_argument("name", metavar="NAME", help=" | ".join(EXPERIMENTS))
+    p.add_argument("--domain", default="container", help="a registered domain (see tmoc domains)")
     p.add_argument("--runs", type=int, default=None, help="independent runs per setting")
     p.add_argument("--episodes", type=int, default=None, help="episodes per run")
     p.add_argument("--particles", type=int, default=None,
@@ -67,6 +68,10 @@ def spec_from_args(args):
 
     if args.name not in ex.EXPERIMENTS:
         raise UsageError(f"NAME: unknown experiment {args.name!r} (known: {', '.join(ex.EXPERIMENTS)})")
+    from ..domains import names as domain_names
+
+    if args.domain not in domain_names():
+        raise UsageError(f"--domain: unknown domain {args.domain!r} (known: {', '.join(domain_names())})")
     if args.scale not in ("default", "paper"):
         raise UsageError(f"--scale: must be default or paper (got {args.scale!r})")
     base = ex.PAPER_SCALE if args.scale == "paper" else ex.DEFAULT_SCALE[args.name]
@@ -94,7 +99,7 @@ def spec_from_args(args):
     spec = ex.Spec(name=args.name, runs=runs, episodes=episodes, particles=particles, seed=args.seed,
                    max_steps=args.max_steps, true_size=args.true_size, milestones=milestones,
                    probe_trials=args.probe_trials, probe_seed=args.probe_seed, scale=args.scale,
-                   settings=ex.settings_for(args.name, particles))
+                   settings=ex.settings_for(args.name, particles), domain=args.domain)
     try:       # every run's config must validate before anything starts
         for k in range(len(spec.settings)):
             ex.run_config(spec, k, 0)
