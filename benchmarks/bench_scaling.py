@@ -15,6 +15,8 @@ throughput_1)``.
 
     python benchmarks/bench_scaling.py                # 1 and 2 nodes, ~30 s on 2 cores
     python benchmarks/bench_scaling.py --max-nodes 8  # the curve, on a machine with 8 cores
+    python benchmarks/bench_scaling.py --domain NAME  # another registered domain: the first
+                                                      # action of each kind of its optimistic plan
 """
 from __future__ import annotations
 
@@ -34,6 +36,29 @@ from coordinator.fanout import ShardPool  # noqa: E402
 from sim_workers.domains import load  # noqa: E402
 
 
+def domain_cases(name: str) -> dict:
+    """Per action kind: (start, action, trajectory, transit end) of its first occurrence in
+    the domain's optimistic plan, run once in a true world (any registered domain)."""
+    from coordinator.domains import load as load_domain
+    from sim_workers.grounded_world import GroundedWorld
+
+    d = load_domain(name)
+    phys, task, n = d.physics, d.task, d.n_blocks
+    truth = phys.true_properties()
+    config = phys.initial_configuration(truth)
+    plan = task.plan(task.initial_state(n), task.optimistic_transition(n))
+    cases = {}
+    with GroundedWorld(phys) as world:
+        config = world.reset(config, truth)
+        for action in plan.actions:
+            key = phys.action_pose(truth, config, action)
+            traj = phys.action_trajectory(config, action, key)
+            t0 = phys.transit_end_time(config, action, key)
+            cases.setdefault(action.split("(")[0], (config.to_array(), action, traj, t0))
+            config = world.execute(traj, action, start_time=t0).configuration
+    return cases
+
+
 def measure(pool: ShardPool, cases: dict, sizes, rounds: int) -> tuple[int, float]:
     """(particle-actions, seconds) for `rounds` x every action, one batch per action."""
     done, t0 = 0, time.perf_counter()
@@ -50,6 +75,7 @@ def main(argv=None) -> int:
     ap.add_argument("--rounds", type=int, default=3, help="times every action is run")
     ap.add_argument("--max-nodes", type=int, default=2)
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--domain", default="container", help="a registered domain (tmoc domains)")
     args = ap.parse_args(argv)
     if args.max_nodes < 2:
         ap.error("--max-nodes: at least 2")
@@ -59,14 +85,14 @@ def main(argv=None) -> int:
     import ray
     from ray.cluster_utils import Cluster
 
-    domain = load("container")
-    cases = make_cases(domain, args.seed)
+    domain = load(args.domain)
+    cases = make_cases(domain, args.seed) if args.domain == "container" else domain_cases(args.domain)
     sizes = particle_sizes(domain, args.particles, args.seed + 1)
     cluster = Cluster(initialize_head=True, head_node_args={"num_cpus": 1, "include_dashboard": False})
     results = {}
     try:
         ray.init(address=cluster.address, logging_level="ERROR", log_to_driver=False)
-        pool = ShardPool("container", {"n_blocks": domain.spec.n_blocks})
+        pool = ShardPool(args.domain, {"n_blocks": domain.spec.n_blocks})
         for k in range(1, args.max_nodes + 1):
             if k > 1:
                 cluster.add_node(num_cpus=1)
@@ -75,7 +101,7 @@ def main(argv=None) -> int:
             nodes = {n["node_id"] for n in pool.nodes()}
             assert len(pool.actors) == len(nodes) == k, (len(pool.actors), nodes)
             # Warm-up: every shard answers once (actor start, first world build, imports).
-            start, action, traj, t_start = cases["pickup"]
+            start, action, traj, t_start = next(iter(cases.values()))
             pool.simulate(start, sizes[: 2 * k], action, traj, t_start)
             n, secs = measure(pool, cases, sizes, args.rounds)
             results[k] = n / secs
