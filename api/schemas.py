@@ -103,7 +103,7 @@ def task_spec_model(max_particles: int, max_episodes: int, max_steps: int = 1000
 def session_create_model(max_particles: int, max_episodes: int, max_steps: int = 1000) -> type[BaseModel]:
     """An external-robot session: the learning settings plus, optionally, the first
     episode's initial observation. The truth (`true_size`) is the robot's world, not a field."""
-    fields = _spec_fields({"true_size"}, max_particles, max_episodes, max_steps)
+    fields = _spec_fields({"true_size", "known_properties"}, max_particles, max_episodes, max_steps)
     fields["reality"] = (Literal["external"], Field(
         "external", description="the robot that posts observations is the real world"))
     fields["observation"] = (InitialObservation | None, Field(

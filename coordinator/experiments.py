@@ -46,7 +46,9 @@ import numpy as np
 
 from .run_config import RunConfig
 
-EXPERIMENTS = ("compare", "particles", "milestones", "sizes", "likelihood")
+# Appended, never reordered: a run's seed derives from its experiment's index here.
+EXPERIMENTS = ("compare", "particles", "milestones", "sizes", "likelihood", "robot")
+ROBOT_EPISODES = tuple(range(0, 37, 4))            # Table II of the paper: episodes 0, 4, ..., 36
 AGENTS = ("tmoc", "tmp_rl", "gp", "toep")
 PARTICLE_FRACTIONS = (0.25, 0.5, 0.75, 1.0)      # paper: N = 50, 100, 150, 200
 
@@ -64,6 +66,7 @@ DEFAULT_SCALE = {
     "milestones": {"runs": 4, "episodes": 50, "particles": 16},
     "sizes": {"runs": 3, "episodes": 30, "particles": 16},
     "likelihood": {"runs": 3, "episodes": 30, "particles": 16},
+    "robot": {"runs": 3, "episodes": 37, "particles": 16},
 }
 DEFAULT_PROBE_TRIALS = 20
 # The experiments' hidden block size. Not the prior mean (45 mm, `tmoc run`'s default):
@@ -138,6 +141,9 @@ def settings_for(name: str, particles: int) -> list[Setting]:
     if name == "likelihood":
         return [Setting(f"likelihood-{m}", m, {"agent": "tmoc", "likelihood": m})
                 for m in ("replay", "paper")]
+    if name == "robot":     # Table II: the real-robot run with the sizes given, and learned
+        return [Setting("robot-given", "sizes given", {"agent": "tmoc", "known_properties": True}),
+                Setting("robot-learned", "sizes learned", {"agent": "tmoc"})]
     raise ValueError(f"unknown experiment {name!r} (known: {', '.join(EXPERIMENTS)})")
 
 
@@ -656,6 +662,8 @@ def summarize(spec: Spec, arrays: dict, optimal: Optimality) -> dict:
     }
     if spec.name == "milestones":
         summary["milestones"] = milestone_table(spec, arrays)
+    if spec.name == "robot":
+        summary["table_ii"] = robot_table(spec, arrays)
     return summary
 
 
@@ -755,6 +763,18 @@ def _fmt(v, digits: int = 1, unit: str = "") -> str:
     return "n/a" if v is None else f"{v:.{digits}f}{unit}"
 
 
+def robot_table(spec: Spec, arrays: dict) -> list[dict]:
+    """Table II of the paper: utility mean and std over runs at episodes 0, 4, ..., 36
+    (0-based, as the paper counts), per setting; episodes beyond the run are left out."""
+    rows = []
+    for s in spec.settings:
+        u = arrays[s.label]["utility"]
+        cells = {str(e): {"mean": float(np.mean(u[:, e])), "std": float(np.std(u[:, e]))}
+                 for e in ROBOT_EPISODES if e < u.shape[1]}
+        rows.append({"setting": s.label, "episodes": cells})
+    return rows
+
+
 def summary_table(summary: dict) -> str:
     """The summary as a markdown table (one row per setting; `milestones` adds its bars as a
     second table). DIR/NAME.md holds it, and docs/RESULTS.md embeds it verbatim."""
@@ -780,6 +800,14 @@ def summary_table(summary: dict) -> str:
             f"| {_fmt(v['optimal_plans_pct_last_fifth'], 0, ' %')} "
             f"| {_fmt(v['successful_actions_pct_last_fifth'], 1, ' %')} "
             f"| {v['mean_wall_s_per_run']:.0f} |")
+    if "table_ii" in summary:
+        episodes = list(summary["table_ii"][0]["episodes"]) if summary["table_ii"] else []
+        lines += ["", "| setting (utility, mean (std) over runs) | " + " | ".join(
+                      f"ep {e}" for e in episodes) + " |",
+                  "|---|" + "---|" * len(episodes)]
+        for row in summary["table_ii"]:
+            lines.append(f"| {row['setting']} | " + " | ".join(
+                f"{c['mean']:.0f} ({c['std']:.0f})" for c in row["episodes"].values()) + " |")
     if "milestones" in summary:
         lines += ["", "| setting | episodes | optimal plans (mean ± std) | successful actions (mean ± std) |",
                   "|---|---|---|---|"]

@@ -45,6 +45,9 @@ class RunConfig(BaseModel):
     n_blocks: int = Field(8, ge=1, le=16)
     true_size: float = Field(0.045, ge=0.02, le=0.08)
     sizes_variation: bool = False
+    # The paper's real-robot run "with the sizes given": the belief is a point mass at the
+    # true properties (Y grounded at the truth), so only T is learned. Simulated tasks only.
+    known_properties: bool = False
     likelihood: Literal["replay", "paper"] = "replay"
     max_steps: int = Field(60, ge=1, le=1000)
     error_rate: float = Field(0.05, gt=0, lt=0.5)

@@ -77,6 +77,8 @@ class Session:
         self.high = np.full(self.dims, spec.prior_high)
         self.belief = (Belief.from_prior(config.particles, self.low, self.high, self.rng)
                        if self.agent.learn_belief else None)
+        if self.belief is not None and config.known_properties:
+            self.belief = self._point_belief(config)
         self.experience = ExperiencePool(self.task.context_of)
         self.transition = self._transition_model()
         self.episode = 0
@@ -89,6 +91,15 @@ class Session:
         self.pending: PendingStep | None = None
         self.stats = EpisodeStats()
         self._t0 = 0.0
+
+    def _point_belief(self, config: RunConfig) -> Belief:
+        """Every particle at the true properties (L given, as in the paper's real-robot
+        run): reweighting cannot move it, resampling finds nothing to resample."""
+        truth = np.full(self.dims, config.true_size)
+        if config.sizes_variation:
+            truth[0] *= 1.2
+        n = config.particles
+        return Belief(np.tile(truth, (n, 1)), np.full(n, -np.log(n)), self.low, self.high)
 
     def _transition_model(self) -> TransitionModel:
         """T rebuilt from the experience pool over the domain's contexts."""

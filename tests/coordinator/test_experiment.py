@@ -115,7 +115,8 @@ def tiny_out(ray_cluster, tmp_path_factory):
 def test_every_experiment_writes_png_csv_json(tiny_out, name):
     summary = json.loads((tiny_out / f"{name}.json").read_text())
     settings = summary["settings"]
-    n_settings = {"compare": 4, "particles": 4, "milestones": 1, "sizes": 2, "likelihood": 2}[name]
+    n_settings = {"compare": 4, "particles": 4, "milestones": 1, "sizes": 2, "likelihood": 2,
+                  "robot": 2}[name]
     assert len(settings) == n_settings
     for s in settings.values():
         assert set(s) >= SUMMARY_KEYS
@@ -131,7 +132,8 @@ def test_every_experiment_writes_png_csv_json(tiny_out, name):
     table = (tiny_out / f"{name}.md").read_text()
     assert table == ex.summary_table(summary)
     assert table.count("\n| ") == n_settings + 1 + (len(summary.get("milestones", [])) + 1
-                                                     if name == "milestones" else 0)
+                                                     if name == "milestones" else 0) \
+        + (n_settings + 1 if name == "robot" else 0)
     png = (tiny_out / f"{name}.png").read_bytes()
     assert png[:8] == b"\x89PNG\r\n\x1a\n" and len(png) > 10_000
     if name == "compare":
@@ -141,6 +143,11 @@ def test_every_experiment_writes_png_csv_json(tiny_out, name):
     if name == "milestones":
         assert [m["episode"] for m in summary["milestones"]] == [1, 2]
         assert all(m["optimal_plans_pct"] is not None for m in summary["milestones"])
+    if name == "robot":     # Table II: episodes 0, 4, ...; here 2 episodes -> episode 0 only
+        assert [r["setting"] for r in summary["table_ii"]] == ["sizes given", "sizes learned"]
+        assert [list(r["episodes"]) for r in summary["table_ii"]] == [["0"], ["0"]]
+        given = {r["setting"]: r for r in rows}["sizes given"]
+        assert abs(float(given["size_mean"]) - summary["spec"]["true_size"]) < 1e-12
     if name == "sizes":                                   # T* is for equal blocks only
         assert {r["optimal_plan"] for r in rows if r["setting"] != "equal"} == {""}
 
@@ -215,7 +222,12 @@ def test_resume_continues_a_partial_run_from_its_checkpoint(ray_cluster, tmp_pat
 RESULTS = Path(__file__).resolve().parents[2] / "docs"
 
 
-@pytest.mark.parametrize("name", ex.EXPERIMENTS)
+# Experiments whose default-scale run is not on the results page yet, and why (visible here
+# on purpose, not skipped silently).
+PENDING_RESULTS = {"robot": "Table II belongs on stack_and_push; run once that domain lands (issue 13)"}
+
+
+@pytest.mark.parametrize("name", [n for n in ex.EXPERIMENTS if n not in PENDING_RESULTS])
 def test_results_page_shows_what_the_committed_runs_measured(name):
     """docs/RESULTS.md embeds each experiment's table exactly as `summary_table` makes it from
     the committed summary, its figure is committed (and small), and the command it quotes
@@ -241,7 +253,7 @@ def test_every_table_on_the_results_page_comes_from_a_committed_summary():
     """Extra tables (e.g. `compare` at another truth) follow the same rule as the five."""
     page = (RESULTS / "RESULTS.md").read_text()
     blocks = re.findall(r"<!-- table:([\w-]+) -->\n(.*?)<!-- /table:\1 -->", page, re.S)
-    assert {k for k, _ in blocks} >= set(ex.EXPERIMENTS)
+    assert {k for k, _ in blocks} >= set(ex.EXPERIMENTS) - set(PENDING_RESULTS)
     for key, table in blocks:
         summary = json.loads((RESULTS / "results" / f"{key}.json").read_text())
         assert table == ex.summary_table(summary), key
