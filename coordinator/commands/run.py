@@ -11,19 +11,35 @@ from ..cli import UsageError
 from ..run_config import RunConfig
 
 
+# Flags and the RunConfig fields they set (the rest, e.g. pose_rule or error_rate, come from
+# --config FILE).
+_FLAG_FIELDS = {"domain": "--domain", "agent": "--agent", "particles": "--particles",
+                "episodes": "--episodes", "seed": "--seed", "true_size": "--true-size",
+                "sizes_variation": "--sizes-variation", "likelihood": "--likelihood",
+                "max_steps": "--max-steps", "shards": "--shards"}
+
+
 def register(sub) -> None:
     p = sub.add_parser("run", help="run one task (TMOC or a baseline) and write result.json + curve.png",
-                       formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+                       formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+                       description="Settings come from the defaults, then --config FILE, then the "
+                                   "flags given (flags win). --print-config prints the result.")
     d = RunConfig()
-    p.add_argument("--domain", default=d.domain)
-    p.add_argument("--agent", default=d.agent, help="tmoc | tmp_rl | gp | toep")
-    p.add_argument("--particles", type=int, default=d.particles)
-    p.add_argument("--episodes", type=int, default=d.episodes)
-    p.add_argument("--seed", type=int, default=d.seed)
-    p.add_argument("--true-size", type=float, default=d.true_size, help="hidden block size (m)")
-    p.add_argument("--sizes-variation", action="store_true", help="one block 20%% larger")
-    p.add_argument("--likelihood", default=d.likelihood, help="replay | paper")
-    p.add_argument("--max-steps", type=int, default=d.max_steps)
+    # Defaults are None here so that a flag given can be told from a flag left out (the
+    # help shows RunConfig's default).
+    p.add_argument("--config", default=None, metavar="FILE",
+                   help="every RunConfig setting from a JSON or YAML file (flags override)")
+    p.add_argument("--print-config", action="store_true",
+                   help="print the resulting settings as JSON and exit (a --config FILE to start from)")
+    p.add_argument("--domain", default=None, help=f"registered domain (default {d.domain})")
+    p.add_argument("--agent", default=None, help=f"tmoc | tmp_rl | gp | toep (default {d.agent})")
+    p.add_argument("--particles", type=int, default=None, help=f"(default {d.particles})")
+    p.add_argument("--episodes", type=int, default=None, help=f"(default {d.episodes})")
+    p.add_argument("--seed", type=int, default=None, help=f"(default {d.seed})")
+    p.add_argument("--true-size", type=float, default=None, help=f"hidden block size, m (default {d.true_size})")
+    p.add_argument("--sizes-variation", action="store_true", default=None, help="one block 20%% larger")
+    p.add_argument("--likelihood", default=None, help=f"replay | paper (default {d.likelihood})")
+    p.add_argument("--max-steps", type=int, default=None, help=f"(default {d.max_steps})")
     p.add_argument("--shards", type=int, default=None, help="shard actors (default: one per CPU)")
     p.add_argument("--ray-address", default=None, help="join a running Ray cluster")
     p.add_argument("--out", default="runs/latest", help="output directory")
@@ -31,20 +47,49 @@ def register(sub) -> None:
     p.set_defaults(func=main)
 
 
-def _config(args) -> RunConfig:
+def _config_file(path: str) -> dict:
+    """The settings in a JSON or YAML file (a mapping); UsageError naming the file otherwise."""
     try:
-        return RunConfig(domain=args.domain, agent=args.agent, particles=args.particles,
-                         episodes=args.episodes, seed=args.seed, true_size=args.true_size,
-                         sizes_variation=args.sizes_variation, likelihood=args.likelihood,
-                         max_steps=args.max_steps, shards=args.shards)
+        text = Path(path).read_text()
+    except OSError as exc:
+        raise UsageError(f"--config {path}: cannot read it ({exc.strerror})") from None
+    try:
+        if path.endswith((".yaml", ".yml")):
+            import yaml
+
+            data = yaml.safe_load(text)
+        else:
+            data = json.loads(text)
+    except Exception as exc:  # noqa: BLE001 - any parse error is the user's file
+        raise UsageError(f"--config {path}: not valid {'YAML' if path.endswith(('.yaml', '.yml')) else 'JSON'} "
+                         f"({str(exc).splitlines()[0]})") from None
+    if not isinstance(data, dict):
+        raise UsageError(f"--config {path}: expected a mapping of settings, got {type(data).__name__}")
+    return data
+
+
+def _config(args) -> RunConfig:
+    from_file = _config_file(args.config) if args.config else {}
+    from_flags = {f: getattr(args, f) for f in _FLAG_FIELDS if getattr(args, f, None) is not None}
+    try:
+        return RunConfig(**{**from_file, **from_flags})
     except ValidationError as exc:
         err = exc.errors()[0]
-        field = "--" + str(err["loc"][0]).replace("_", "-")
-        raise UsageError(f"{field}: {err['msg']} (got {err.get('input')!r})") from None
+        loc = [str(x) for x in err["loc"]]
+        if loc and loc[0] in from_flags:
+            where = _FLAG_FIELDS[loc[0]]
+        elif args.config:
+            where = f"--config {args.config}: {'.'.join(loc) or 'settings'}"
+        else:
+            where = "--" + (loc[0] if loc else "settings").replace("_", "-")
+        raise UsageError(f"{where}: {err['msg']} (got {err.get('input')!r})") from None
 
 
 def main(args) -> int:
     config = _config(args)
+    if args.print_config:
+        print(json.dumps(config.model_dump(mode="json"), indent=2))
+        return 0
     from ..runner import run, write_result
     from tqdm import tqdm
 

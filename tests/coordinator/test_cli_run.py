@@ -47,3 +47,38 @@ def test_a_tiny_run_writes_result_json_and_curve_png(ray_cluster, tmp_path, caps
     png = (tmp_path / "curve.png").read_bytes()
     assert png[:8] == b"\x89PNG\r\n\x1a\n" and len(png) > 10_000
     assert json.loads(capsys.readouterr().out)["result"].endswith("result.json")
+
+
+def test_config_file_then_flags_and_print_config(tmp_path, capsys):
+    """Every setting reachable from a file (issue 16 item 5): settings without a flag
+    (pose_rule, error_rate, use_measurements, costs) come from it; flags override it."""
+    yaml_file = tmp_path / "run.yaml"
+    yaml_file.write_text("agent: gp\nparticles: 12\npose_rule: mean\nerror_rate: 0.1\n"
+                         "use_measurements: false\ncosts:\n  push: 20\n")
+    assert main(["run", "--config", str(yaml_file), "--particles", "7", "--print-config"]) == 0
+    cfg = json.loads(capsys.readouterr().out)
+    assert (cfg["agent"], cfg["particles"], cfg["pose_rule"], cfg["error_rate"]) == ("gp", 7, "mean", 0.1)
+    assert cfg["use_measurements"] is False and cfg["costs"]["push"] == 20 and cfg["costs"]["stack"] == 10
+    json_file = tmp_path / "run.json"
+    json_file.write_text(json.dumps(cfg))           # the printed config is a valid --config
+    assert main(["run", "--config", str(json_file), "--print-config"]) == 0
+    assert json.loads(capsys.readouterr().out) == cfg
+    assert main(["run", "--print-config"]) == 0      # the defaults
+    assert json.loads(capsys.readouterr().out)["particles"] == 32
+
+
+@pytest.mark.parametrize("content, needle", [
+    ("particles: [1\n", "not valid YAML"),
+    ("- 1\n- 2\n", "expected a mapping"),
+    ("partcles: 3\n", "partcles"),
+    ("pose_rule: median\n", "pose_rule"),
+    ("costs:\n  jump: 3\n", "costs.jump"),
+])
+def test_a_bad_config_file_exits_2_naming_the_setting(tmp_path, capsys, content, needle):
+    f = tmp_path / "bad.yaml"
+    f.write_text(content)
+    assert main(["run", "--config", str(f), "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err
+    assert f"--config {f}" in err and needle in err and "Traceback" not in err
+    assert main(["run", "--config", str(tmp_path / "missing.json")]) == 2
+    assert "cannot read" in capsys.readouterr().err
