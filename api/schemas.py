@@ -70,6 +70,14 @@ def _spec_fields(exclude: set[str], max_particles: int, max_episodes: int, max_s
             continue
         fields[name] = (info.annotation, info)
     fields["costs"] = (StrictCosts, Field(default_factory=StrictCosts))
+    if "domain" not in exclude:
+        # an enum of the domains registered when the app is built, so the OpenAPI schema
+        # says which names are valid (a schema-valid request is never refused for its domain)
+        from coordinator.domains import names
+        known = tuple(names())
+        fields["domain"] = (Literal[known], Field(  # type: ignore[valid-type]
+            "container", description=f"the task's domain, one of: {', '.join(known)} "
+                                     "(GET /v1/domains)"))
     fields["particles"] = (int, Field(
         min(RunConfig.model_fields["particles"].default, max_particles), ge=1, le=max_particles,
         description=f"particles (grounded worlds) of the belief over L; this server's limit is "
