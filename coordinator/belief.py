@@ -348,6 +348,11 @@ def mode_mask(particles: np.ndarray, weights: np.ndarray, bandwidth: float) -> n
     For a unimodal belief narrower than the bandwidth it keeps every particle.
     """
     p = np.asarray(particles, dtype=np.float64).reshape(len(particles), -1)
+    # Exact shortcut: when the particles' bounding box has a diagonal within 2 bandwidths,
+    # every particle is within 2 bandwidths of any one, so of the densest: all are kept.
+    # A converged belief (0.3 mm wide against a 3 mm bandwidth) never pays the N^2 below.
+    if float(((p.max(axis=0) - p.min(axis=0)) ** 2).sum()) <= (2.0 * bandwidth) ** 2:
+        return np.ones(len(p), dtype=bool)
     d2 = ((p[:, None, :] - p[None, :, :]) ** 2).sum(-1)
     density = (np.exp(-0.5 * d2 / bandwidth ** 2) * np.asarray(weights)[None, :]).sum(1)
     best = int(np.argmax(density))

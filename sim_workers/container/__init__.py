@@ -91,6 +91,14 @@ class ContainerDomain:
     def action_pose(self, props: dict, config: Configuration, action: str) -> np.ndarray:
         return state_mapping.action_pose(self.spec, self.properties(props)["block_sizes"], config, action)
 
+    def action_poses(self, rows: np.ndarray, config: Configuration, action: str) -> np.ndarray:
+        """Y for every row of L at once ((N, D) -> (N, 5)), bit for bit the per-row Y."""
+        rows = np.asarray(rows, dtype=np.float64)
+        sizes = np.broadcast_to(rows, (len(rows), self.spec.n_blocks)) if rows.shape[1] == 1 else rows
+        self.properties({"block_sizes": sizes.min(axis=0)})       # validation, as per row
+        self.properties({"block_sizes": sizes.max(axis=0)})
+        return state_mapping.action_poses(self.spec, sizes, config, action)
+
     def action_trajectory(self, config: Configuration, action: str, key: np.ndarray,
                           transit: np.ndarray | None = None) -> np.ndarray:
         return trajectories.action_trajectory(self.spec, config, action, key, transit)

@@ -242,3 +242,21 @@ def test_gaussian_log_likelihood_values_and_nan():
                           np.zeros(3))
     with pytest.raises(ValueError, match="sigma"):
         gaussian_log_likelihood(obs, pred, sigma=0.0)
+
+
+def test_mode_mask_shortcut_agrees_with_the_full_density():
+    """The O(1) shortcut for a narrow belief keeps exactly what the N^2 density keeps."""
+    from coordinator.belief import mode_mask
+    rng = np.random.default_rng(3)
+    bw = 0.003
+    for width in (0.0005, 0.002, 0.0042, 0.02):
+        p = 0.045 + rng.uniform(-width / 2, width / 2, size=(200, 2))
+        w = rng.dirichlet(np.ones(200))
+        got = mode_mask(p, w, bw)
+        d2 = ((p[:, None, :] - p[None, :, :]) ** 2).sum(-1)
+        best = int(np.argmax((np.exp(-0.5 * d2 / bw ** 2) * w[None, :]).sum(1)))
+        np.testing.assert_array_equal(got, d2[best] <= (2 * bw) ** 2)
+    # bimodal: only the heavier mode is kept
+    p = np.r_[np.full((30, 1), 0.030), np.full((70, 1), 0.060)]
+    keep = mode_mask(p, np.full(100, 0.01), bw)
+    assert keep.sum() == 70 and np.all(keep[30:])

@@ -310,3 +310,37 @@ def test_check_action_names_the_bad_argument():
         domain.check_action("stack(r,b12,c)")
     with pytest.raises(ValueError, match="teleport"):
         domain.check_action("teleport(r,b1)")
+
+
+# -- vectorised Y: what the coordinator calls once per action for all N particles ------------
+def _vector_scenes():
+    yield base(), ["pickup(r,b1,init)", "pickup(r,b4,init)"]
+    loaded = _loaded(2, c=(0.05, -0.02), cyaw=0.4)
+    yield loaded, [f"stack(r,b{k},c)" for k in range(3, N + 1)] + \
+        ["push(r,c,init,goal)", "push(r,c,goal,init)"]
+
+
+def test_action_poses_equal_per_row_action_pose_bit_for_bit():
+    rng = np.random.default_rng(7)
+    domain = load("container")
+    for config, actions in _vector_scenes():
+        rows = rng.uniform(0.025, 0.065, size=(64, N))
+        for action in actions:
+            batch = domain.action_poses(rows, config, action)
+            single = np.array([domain.action_pose({"block_sizes": r}, config, action) for r in rows])
+            assert batch.shape == (64, 5)
+            np.testing.assert_array_equal(batch, single, err_msg=action)
+    # a shared size (one column of L) broadcasts to every block
+    shared = rng.uniform(0.03, 0.06, size=(8, 1))
+    config = base()
+    np.testing.assert_array_equal(
+        domain.action_poses(shared, config, "pickup(r,b2,init)"),
+        [domain.action_pose({"block_sizes": np.full(N, r[0])}, config, "pickup(r,b2,init)") for r in shared])
+
+
+def test_action_poses_refuses_a_size_out_of_range_by_name():
+    domain = load("container")
+    rows = np.full((3, N), 0.05)
+    rows[1, 2] = 5.0
+    with pytest.raises(ValueError, match="block_sizes"):
+        domain.action_poses(rows, base(), "pickup(r,b3,init)")
