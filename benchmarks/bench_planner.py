@@ -12,10 +12,15 @@ incremental horizon loop, naming and re-scoring the plan). T settings:
     mid-episode  push-linear from a state with b1 delivered, a loaded container at init,
                  a block in the gripper and one on the table
 
-    python benchmarks/bench_planner.py [--quick] [--repeats 15]
+The same settings for stack-and-push (`planner.stack_and_push.plan`; its mid-episode state
+is b1 delivered, a tower of two, a block in the gripper and one lying in the rail; the
+domain has at most 8 blocks, so 16 is skipped for it).
+
+    python benchmarks/bench_planner.py [--quick] [--repeats 15] [--domain container,stack_and_push]
 
 The last line is machine-readable: median_ms_8=... median_ms_16=... (median over all runs
-of all settings for that number of blocks).
+of all settings for that number of blocks, first domain), then DOMAIN_median_ms_8=... for
+every domain.
 """
 from __future__ import annotations
 
@@ -30,8 +35,11 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from planner import stack_and_push  # noqa: E402
 from planner import symbolic  # noqa: E402
 from planner import task_planner  # noqa: E402
+
+MAX_BLOCKS = {"container": 16, "stack_and_push": 8}
 
 
 def transition(n: int, push: Callable[[int], float] = lambda k: 1.0,
@@ -48,27 +56,38 @@ def mid_episode_state(n: int) -> frozenset[str]:
     return frozenset(atoms)
 
 
-def settings(n: int) -> dict[str, tuple[frozenset[str], dict]]:
+def mid_episode_stack_and_push(n: int) -> frozenset[str]:
+    atoms = {"is_in(b1,goal)", "on(b2,start)", "on(b3,b2)", "is_holding(r,b4)", "is_in(b5,rail)"}
+    atoms |= {f"is_in(b{i},init)" for i in range(6, n + 1)}
+    return frozenset(atoms)
+
+
+def settings(n: int, domain: str = "container") -> dict[str, tuple[frozenset[str], dict]]:
     slope = 0.08 if n <= 8 else 0.05
     linear = transition(n, push=lambda k: 1 - slope * k)
-    start = symbolic.initial_state(n)
+    if domain == "stack_and_push":
+        start, mid = stack_and_push.initial_state(n), mid_episode_stack_and_push(n)
+    else:
+        start, mid = symbolic.initial_state(n), mid_episode_state(n)
     return {
         "optimistic": (start, task_planner.optimistic_transition(n)),
         "push-linear": (start, linear),
         "push-step": (start, transition(n, push=lambda k: 1.0 if k <= 4 else 0.3)),
         "stack-fall": (start, transition(n, push=lambda k: 1 - 0.03 * k,
                                          stack=lambda j: 1 - 0.06 * j, pickup=0.9)),
-        "mid-episode": (mid_episode_state(n), linear),
+        "mid-episode": (mid, linear),
     }
 
 
-def time_plans(state: frozenset[str], T: dict, repeats: int) -> tuple[list[float], task_planner.Plan]:
+def time_plans(state: frozenset[str], T: dict, repeats: int,
+               domain: str = "container") -> tuple[list[float], task_planner.Plan]:
     """Wall times (ms) of `repeats` calls after one warm-up call, and the plan."""
-    result = task_planner.plan(state, T)
+    plan = stack_and_push.plan if domain == "stack_and_push" else task_planner.plan
+    result = plan(state, T)
     times = []
     for _ in range(repeats):
         t0 = time.perf_counter()
-        result = task_planner.plan(state, T)
+        result = plan(state, T)
         times.append((time.perf_counter() - t0) * 1e3)
     return times, result
 
@@ -78,6 +97,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--quick", action="store_true", help="3 repeats per setting (smoke run)")
     ap.add_argument("--repeats", type=int, default=15, help="timed calls per setting (default 15)")
     ap.add_argument("--blocks", default="8,16", help="comma-separated block counts (default 8,16)")
+    ap.add_argument("--domain", default="container,stack_and_push",
+                    help="comma-separated domains (default container,stack_and_push)")
     args = ap.parse_args(argv)
     repeats = 3 if args.quick else args.repeats
     if repeats < 1:
@@ -89,17 +110,29 @@ def main(argv: list[str] | None = None) -> int:
     if any(n < 5 for n in counts):
         ap.error("--blocks: the mid-episode setting needs at least 5 blocks")
 
-    print(f"{'blocks':>6}  {'T setting':<12} {'median ms':>9} {'p90 ms':>8} {'max ms':>8}  "
-          f"{'optimal':<7}  loads")
-    all_times: dict[int, list[float]] = {}
-    for n in counts:
-        for name, (state, T) in settings(n).items():
-            times, result = time_plans(state, T, repeats)
-            all_times.setdefault(n, []).extend(times)
-            print(f"{n:>6}  {name:<12} {statistics.median(times):>9.1f} "
-                  f"{float(np.percentile(times, 90)):>8.1f} {max(times):>8.1f}  "
-                  f"{str(result.optimal):<7}  {'+'.join(map(str, result.loads))}")
-    print(" ".join(f"median_ms_{n}={statistics.median(t):.1f}" for n, t in all_times.items()))
+    domains = [d.strip() for d in args.domain.split(",") if d.strip()]
+    unknown = [d for d in domains if d not in MAX_BLOCKS]
+    if unknown or not domains:
+        ap.error(f"--domain: unknown domain {unknown[0] if unknown else ''!r} "
+                 f"(known: {', '.join(MAX_BLOCKS)})")
+
+    print(f"{'domain':<15} {'blocks':>6}  {'T setting':<12} {'median ms':>9} {'p90 ms':>8} "
+          f"{'max ms':>8}  {'optimal':<7}  loads")
+    all_times: dict[tuple[str, int], list[float]] = {}
+    for domain in domains:
+        for n in counts:
+            if n > MAX_BLOCKS[domain]:
+                continue
+            for name, (state, T) in settings(n, domain).items():
+                times, result = time_plans(state, T, repeats, domain)
+                all_times.setdefault((domain, n), []).extend(times)
+                print(f"{domain:<15} {n:>6}  {name:<12} {statistics.median(times):>9.1f} "
+                      f"{float(np.percentile(times, 90)):>8.1f} {max(times):>8.1f}  "
+                      f"{str(result.optimal):<7}  {'+'.join(map(str, result.loads))}")
+    first = [f"median_ms_{n}={statistics.median(t):.1f}" for (d, n), t in all_times.items()
+             if d == domains[0]]
+    rest = [f"{d}_median_ms_{n}={statistics.median(t):.1f}" for (d, n), t in all_times.items()]
+    print(" ".join(first + rest))
     return 0
 
 

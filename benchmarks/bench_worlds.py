@@ -1,8 +1,11 @@
-"""Particle-actions per second of the container domain's grounded worlds, against raw pybullet.
+"""Particle-actions per second of a domain's grounded worlds, against raw pybullet.
 
 For each action (pickup, stack, push) one batch of particles (block sizes drawn from the
 prior) replays one trajectory from Y with the true size, starting at the pre-pose (the
-free-space transit is skipped, as particle worlds do). Measured on this machine in one run:
+free-space transit is skipped, as particle worlds do). The domain is ``--domain NAME``
+(default container; also stack_and_push, with its own actions: pickup(r,b3,init),
+stack(r,b3,tower) onto a tower of two, push(r,tower,start,goal) of a tower of four).
+Measured on this machine in one run:
 
   (a) in-process   one ``sim_workers.shard.Shard`` (one world), the whole batch in one call;
   (b) ray x2       two shard actors on local Ray (``ray.init(num_cpus=2)``), the batch split
@@ -26,6 +29,7 @@ Also: the cost of one world reset (a rebuild), the share of in-process time spen
 
     python benchmarks/bench_worlds.py --quick      # under a minute
     python benchmarks/bench_worlds.py              # larger batches, best of 3 rounds
+    python benchmarks/bench_worlds.py --quick --domain stack_and_push
 """
 from __future__ import annotations
 
@@ -42,7 +46,6 @@ os.environ.setdefault("RAY_DEDUP_LOGS", "0")
 
 import pybullet as pb  # noqa: E402
 
-from sim_workers.container.scene import build_scene  # noqa: E402
 from sim_workers.domains import load  # noqa: E402
 from sim_workers.configuration import Configuration  # noqa: E402
 from sim_workers.grounded_world import GroundedWorld  # noqa: E402
@@ -50,11 +53,18 @@ from sim_workers.probe import loaded_configuration  # noqa: E402
 from sim_workers.shard import Shard, remote_shard  # noqa: E402
 
 ACTIONS = ("pickup", "stack", "push")
+DOMAINS = ("container", "stack_and_push")   # the domains make_cases has a workload for
 
 
 # -- the workload -------------------------------------------------------------------------
 def make_cases(domain, seed: int) -> dict:
-    """Per action: (flat start configuration, action term, trajectory, start time)."""
+    """Per action: (flat start configuration, action term, trajectory, start time).
+
+    container: pickup(r,b3,init); stack(r,b3,c) onto a pile of two; push(r,c,init,goal)
+    with four blocks loaded. stack_and_push: pickup(r,b3,init); stack(r,b3,tower) onto a
+    tower of two; push(r,tower,start,goal) of a tower of four."""
+    if domain.name not in DOMAINS:
+        sys.exit(f"bench_worlds: no workload for domain {domain.name!r} (known: {', '.join(DOMAINS)})")
     rng = np.random.default_rng(seed)
     truth = domain.true_properties()
     sizes = truth["block_sizes"]
@@ -63,21 +73,33 @@ def make_cases(domain, seed: int) -> dict:
     def case(name, config, action):
         key = domain.action_pose(truth, config, action)
         traj = domain.action_trajectory(config, action, key)
-        cases[name] = (config.to_array(), action, traj, float(traj[3, 0]))   # 4th row: pre-pose
+        # The pre-pose, where the transit ends (the 4th row of the default transit).
+        cases[name] = (config.to_array(), action, traj, domain.transit_end_time(config, action, key))
+
+    if domain.name == "stack_and_push":
+        from sim_workers.stack_and_push.probes import tower_configuration
+
+        def loaded(k):                     # b1..bk stacked on the start site
+            return tower_configuration(domain, sizes, k, rng)
+        target, push = "tower", "push(r,tower,start,goal)"
+    else:
+        def loaded(k):                     # b1..bk piled in the container
+            return loaded_configuration(domain, sizes, k, rng)
+        target, push = "c", "push(r,c,init,goal)"
 
     case("pickup", domain.initial_configuration(truth), "pickup(r,b3,init)")
-    # Stack onto a pile of two: the start is a real grasp of b3 (observed after a pickup).
-    loaded = loaded_configuration(domain, sizes, 2, rng)
+    # Stack onto a pile (tower) of two: the start is a real grasp of b3 (observed after a pickup).
+    two = loaded(2)
     with GroundedWorld(domain) as world:
-        world.reset(loaded, truth)
+        world.reset(two, truth)
         action = "pickup(r,b3,init)"
-        key = domain.action_pose(truth, loaded, action)
-        traj = domain.action_trajectory(loaded, action, key)
-        held = world.execute(traj, action, start_time=float(traj[3, 0]))
+        key = domain.action_pose(truth, two, action)
+        traj = domain.action_trajectory(two, action, key)
+        held = world.execute(traj, action, start_time=domain.transit_end_time(two, action, key))
     if "is_holding(r,b3)" not in held.state:
         sys.exit("bench_worlds: the setup pickup for the stack case failed")
-    case("stack", held.configuration, "stack(r,b3,c)")
-    case("push", loaded_configuration(domain, sizes, 4, rng), "push(r,c,init,goal)")
+    case("stack", held.configuration, f"stack(r,b3,{target})")
+    case("push", loaded(4), push)
     return cases
 
 
@@ -100,8 +122,8 @@ def _replay(job) -> float:
 
     from sim_workers import trajectory as tr
 
-    start, sizes, traj, t0, counts = job
-    domain = load("container")
+    domain_name, start, sizes, traj, t0, counts = job
+    domain = load(domain_name)
     world = GroundedWorld(domain)
     config = Configuration.from_array(start)
     dt = domain.spec.time_step
@@ -126,20 +148,19 @@ def _replay(job) -> float:
 
 
 # -- (c) raw pybullet stepping in plain processes ------------------------------------------
-def _raw_worker(conn, n_blocks: int) -> None:
+def _raw_worker(conn, domain_name: str, n_blocks: int) -> None:
     """Steps one scene with bare ``stepSimulation`` calls; the gripper's target never changes.
 
-    Message ("built", None, n): the scene as ``build_scene`` leaves it (blocks in their row,
-    the gripper up), built once. Message ("start", (start, action, traj, t0), n): the scene
+    Message ("built", None, n): the scene as the domain's ``build`` leaves it (blocks in
+    their row, the gripper up), built once. Message ("start", (start, action, traj, t0), n): the scene
     put once in the action's start configuration with the gripper at its pre-pose (same
     bodies in contact as the action starts with), then stepped n times. Replies the seconds
     spent stepping.
     """
-    domain = load("container", n_blocks=n_blocks)
+    domain = load(domain_name, n_blocks=n_blocks)
     truth = domain.true_properties()
-    props = domain.properties(truth)
     client = pb.connect(pb.DIRECT)
-    build_scene(client, domain.spec, props["block_sizes"], props["block_masses"])
+    domain.build(client, truth)
     step = pb.stepSimulation
     for _ in range(50):
         step(physicsClientId=client)
@@ -171,12 +192,12 @@ def _raw_worker(conn, n_blocks: int) -> None:
 class RawPool:
     """Plain processes, one pybullet scene each, built once."""
 
-    def __init__(self, n: int, n_blocks: int) -> None:
+    def __init__(self, n: int, domain_name: str, n_blocks: int) -> None:
         ctx = mp.get_context("spawn")
         self.conns, self.procs = [], []
         for _ in range(n):
             parent, child = ctx.Pipe()
-            p = ctx.Process(target=_raw_worker, args=(child, n_blocks), daemon=True)
+            p = ctx.Process(target=_raw_worker, args=(child, domain_name, n_blocks), daemon=True)
             p.start()
             self.conns.append(parent)
             self.procs.append(p)
@@ -248,20 +269,25 @@ def main(argv=None) -> int:
     ap.add_argument("--batch", type=int, default=None, help="particles per action (default 64, quick 32)")
     ap.add_argument("--rounds", type=int, default=None, help="rounds, best kept (default 3, quick 2)")
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--domain", default="container", metavar="NAME",
+                    help=f"domain whose worlds are measured: {' or '.join(DOMAINS)} (default container)")
     args = ap.parse_args(argv)
     batch = args.batch or (32 if args.quick else 64)
     rounds = args.rounds or (2 if args.quick else 3)
     if batch < 2 or rounds < 1:
         ap.error("--batch must be at least 2 and --rounds at least 1")
+    if args.domain not in DOMAINS:
+        ap.error(f"--domain: no workload for {args.domain!r} (known: {', '.join(DOMAINS)})")
+    name_d = args.domain
     t_start = time.perf_counter()
 
-    domain = load("container")
+    domain = load(name_d)
     cases = make_cases(domain, args.seed)
     sizes = particle_sizes(domain, batch, args.seed + 1)
     halves = (slice(0, batch // 2), slice(batch // 2, batch))
 
     # (a) in-process, one world.
-    shard = Shard("container", None, 1)
+    shard = Shard(name_d, None, 1)
     local, steps, physics_share = {}, {}, {}
     for name in ACTIONS:
         start, action, traj, t0 = cases[name]
@@ -282,7 +308,7 @@ def main(argv=None) -> int:
 
     # (c) raw stepping, 2 processes (before Ray starts, so nothing else competes).
     raw, raw_start = {}, {}
-    pool = RawPool(2, domain.spec.n_blocks)
+    pool = RawPool(2, name_d, domain.spec.n_blocks)
     try:
         pool.step([1000, 1000])                                     # warm up
         for name in ACTIONS:
@@ -299,7 +325,7 @@ def main(argv=None) -> int:
     with mp.get_context("spawn").Pool(2) as rp:
         for name in ACTIONS:
             start, action, traj, t0 = cases[name]
-            jobs = [(start, sizes[h], traj, t0, steps[name][h]) for h in halves]
+            jobs = [(name_d, start, sizes[h], traj, t0, steps[name][h]) for h in halves]
             best = np.inf
             for _ in range(rounds):
                 tic = time.perf_counter()
@@ -313,7 +339,7 @@ def main(argv=None) -> int:
     ray.init(num_cpus=2, include_dashboard=False, logging_level="ERROR", log_to_driver=False)
     try:
         Actor = remote_shard(num_cpus=1)
-        actors = [Actor.remote("container", None, 1) for _ in range(2)]
+        actors = [Actor.remote(name_d, None, 1) for _ in range(2)]
         ray.get([a.node.remote() for a in actors])                  # actors up, worlds built
         sharded = {}
         for name in ACTIONS:
@@ -334,7 +360,7 @@ def main(argv=None) -> int:
         ray.shutdown()
 
     # Report.
-    print(f"bench_worlds: container domain, {batch} particles per action (sizes from the prior), "
+    print(f"bench_worlds: {name_d} domain, {batch} particles per action (sizes from the prior), "
           f"best of {rounds} round(s), {os.cpu_count()} cores, pybullet DIRECT, "
           f"dt {domain.spec.time_step:.5f} s, {domain.spec.solver_iterations} solver iterations")
     head = (f"{'action':<8}{'steps/pa':>9}{'in-proc':>9}{'physics':>9}{'ray x2':>9}{'raw x2':>9}"

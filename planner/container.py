@@ -92,8 +92,10 @@ class ContainerTask:
         return task_planner.optimistic_transition(n_blocks)
 
     def plan(self, state: Iterable[str], transition: Mapping, costs: Mapping | None = None, *,
-             max_steps: int | None = None, time_limit: float = task_planner.DEFAULT_TIME_LIMIT_S):
-        return task_planner.plan(state, transition, costs, max_steps=max_steps, time_limit=time_limit)
+             block_classes: Mapping[str, str] | None = None, max_steps: int | None = None,
+             time_limit: float = task_planner.DEFAULT_TIME_LIMIT_S):
+        return task_planner.plan(state, transition, costs, block_classes=block_classes,
+                                 max_steps=max_steps, time_limit=time_limit)
 
     def satisficing(self, state: Iterable[str], *, rng: np.random.Generator,
                     transition: Mapping | None = None, costs: Mapping | None = None):

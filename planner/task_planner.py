@@ -244,6 +244,7 @@ class _Problem:
     held: str | None
     load0: int                    # blocks in the container (standing at init)
     at_goal: bool                 # the container stands at goal
+    return_push: bool = True      # a trip ends with a return push (stack-and-push: none)
 
     @property
     def units(self) -> int:
@@ -260,6 +261,8 @@ class _Problem:
         """Length of every waste-free plan with that many trips: a pickup per waiting block,
         a stack per block not yet in the container, a push to goal per trip and a return
         push between trips (and first, if the container stands at goal)."""
+        if not self.return_push:
+            return 2 * len(self.order) + (self.held is not None) + trips
         return 2 * len(self.order) + (self.held is not None) + 2 * trips - 1 + self.at_goal
 
 
@@ -439,6 +442,8 @@ class _Search:
 def _lower_bound(problem: _Problem, weights: _Weights, trips: int) -> int:
     """Least objective of any plan with this many trips: the constant, plus the return
     pushes; every other weight in a step is >= 0 (see _trip_weights)."""
+    if not problem.return_push:
+        return weights.constant
     return weights.constant + (trips - 1 + problem.at_goal) * weights.back
 
 
@@ -464,15 +469,18 @@ def _name_actions(problem: _Problem, steps: Sequence[str]) -> tuple[str, ...]:
 
 
 def _optimise(problem: _Problem, weights: _Weights, last_trips: int,
-              deadline: float) -> _Search:
+              deadline: float, encoding: Path = ENCODING) -> _Search:
     """Multi-shot search: extend the horizon one trip at a time until the stopping rule
     (see ``plan``) says that no longer plan can be better."""
     ctl = clingo.Control(["--opt-mode=opt", "--models=0", "--warn=none"])
-    ctl.add("base", [], ENCODING.read_text())
+    ctl.add("base", [], encoding.read_text())
     ctl.add("base", [], weights.facts)
     ctl.ground([("base", [])])
     search = _Search(ctl, problem, weights, deadline)
-    trips = 1
+    # Without a return push the lower bound does not grow with the trips, so one solve at
+    # the longest horizon (which holds every waste-free plan, noop after the goal) proves
+    # optimality at once.
+    trips = 1 if problem.return_push else last_trips
     while True:
         search.extend(problem.horizon(trips))
         search.solve()

@@ -96,3 +96,4 @@ def load(name: str, **options) -> Domain:
 
 def _ensure_builtin() -> None:
     from . import container  # noqa: F401  (registers itself)
+    from . import stack_and_push  # noqa: F401  (registers itself)

@@ -86,6 +86,13 @@ def run_trial(action: str, true_size: float, believed_size: float, load_k: int,
     return bool(world_domain.probe_trial(action, true_size, believed_size, load_k, rng))
 
 
+def probe_loads(domain_obj, action: str) -> range:
+    """The loads a probe of `action` accepts: the domain's own (``probe_loads(action)``,
+    e.g. stack_and_push stacks onto a tower of 0..n-1) or, by default, 1..n_blocks."""
+    own = getattr(domain_obj, "probe_loads", None)
+    return own(action) if own is not None else range(1, domain_obj.spec.n_blocks + 1)
+
+
 def probe(action: str, true_size: float, believed_size: float | None = None, load_k: int = 4,
           trials: int = 20, seed: int = 0, n_blocks: int = 8, options: dict | None = None,
           domain: str = "container") -> ProbeResult:
@@ -96,8 +103,9 @@ def probe(action: str, true_size: float, believed_size: float | None = None, loa
     if action not in actions:
         raise ValueError(f"action: {action!r} is not one of {', '.join(actions)}")
     believed = true_size if believed_size is None else believed_size
-    if not 1 <= load_k <= n_blocks:
-        raise ValueError(f"load: {load_k} is outside [1, {n_blocks}]")
+    loads = probe_loads(load(domain, **{**(options or {}), "n_blocks": n_blocks}), action)
+    if load_k not in loads:
+        raise ValueError(f"load: {load_k} is outside [{loads.start}, {loads.stop - 1}]")
     # One child generator per trial: trial t's outcome does not depend on the trial count.
     children = np.random.default_rng(seed).spawn(trials)
     wins = sum(run_trial(action, true_size, believed, load_k, rng, n_blocks, options, domain)

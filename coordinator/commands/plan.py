@@ -4,8 +4,10 @@
         --p-push 1,1,1,0.9,0.8,0.6,0.4,0.3 [--state FILE] [--json]
 
 T is given as success probabilities: --p-pickup (one number, or CLASS=P,... with --class),
---p-stack p_0,...,p_{N-1} (index = blocks already in the container) and --p-push
-p_1,...,p_N (index = load of the push to goal); lists left out mean "always succeeds".
+--p-stack p_0,...,p_{N-1} (index = blocks already in the container, or the tower height
+before the stack) and --p-push p_1,...,p_N (index = load of the push to goal, or the
+tower height pushed); lists left out mean "always succeeds". --domain is any registered
+domain whose T has these three fields (container, stack_and_push).
 The plan starts from all blocks at init, or from the atoms in --state FILE (one per line,
 or separated by whitespace or periods; `%` starts a comment).
 """
@@ -19,7 +21,6 @@ from pathlib import Path
 
 from coordinator.cli import UsageError
 
-DOMAINS = ("container",)
 DEFAULT_BLOCKS = 8
 # Planner fields -> the flag a user of this command wrote them with.
 _FLAGS = {"pickup": "--p-pickup", "stack": "--p-stack", "push": "--p-push", "costs": "--cost",
@@ -101,16 +102,14 @@ def _pickup(text: str) -> float | dict[str, float]:
     return {name: _number("--p-pickup", v) for name, v in _pairs("--p-pickup", [text]).items()}
 
 
-def _read_state(path: str):
-    from planner import symbolic
-
+def _read_state(path: str, task):
     try:
         text = Path(path).read_text()
     except OSError as exc:
         raise UsageError(f"--state: cannot read {path!r}: {exc.strerror or exc}") from None
     text = "\n".join(line.split("%", 1)[0] for line in text.splitlines())
     try:
-        return symbolic.parse_state(text)
+        return task.parse_state(text)
     except ValueError as exc:
         raise UsageError(f"--state {path}: {exc}") from None
 
@@ -125,14 +124,15 @@ def _flag_message(message: str) -> str:
 
 # --------------------------------------------------------------------------- output
 
-def _listing(result, n_blocks: int) -> str:
+def _listing(result, n_blocks: int, domain: str) -> str:
     proof = "optimal (proven)" if result.optimal else "best found (optimality not proven)"
-    lines = [f"container plan for {n_blocks} blocks: {len(result.actions)} actions, {proof}, "
+    lines = [f"{domain} plan for {n_blocks} blocks: {len(result.actions)} actions, {proof}, "
              f"{result.solve_ms:.1f} ms"]
     loads = iter(result.loads)
     width = len(str(len(result.actions)))
     for i, action in enumerate(result.actions, start=1):
-        note = f"   load {next(loads)}" if action.endswith(",init,goal)") else ""
+        # a push to goal (the container's return push ends at init) carries a load
+        note = f"   load {next(loads)}" if action.startswith("push(") and action.endswith(",goal)") else ""
         lines.append(f"  {i:>{width}}  {action}{note}")
     lines.append(f"loads: {' + '.join(map(str, result.loads)) or '-'}")
     lines.append(f"expected utility: {result.expected_utility:.3f}")
@@ -140,19 +140,22 @@ def _listing(result, n_blocks: int) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
-    from planner import symbolic, task_planner
+    from coordinator import domains
+    from planner import task_planner
 
-    if args.domain not in DOMAINS:
-        raise UsageError(f"--domain: unknown domain {args.domain!r} (known: {', '.join(DOMAINS)})")
+    try:
+        task = domains.task_half(args.domain)
+    except ValueError as exc:
+        raise UsageError(f"--{exc}") from None
     if args.state is not None:
-        state = _read_state(args.state)
-        n_blocks = len(symbolic.blocks(state))
+        state = _read_state(args.state, task)
+        n_blocks = len(task.blocks(state))
         if args.blocks is not None and _integer("--blocks", args.blocks, 1) != n_blocks:
             raise UsageError(f"--blocks: {args.blocks} does not match the {n_blocks} blocks "
                              f"in {args.state}")
     else:
         n_blocks = DEFAULT_BLOCKS if args.blocks is None else _integer("--blocks", args.blocks, 1)
-        state = symbolic.initial_state(n_blocks)
+        state = task.initial_state(n_blocks)
     transition = {"pickup": _pickup(args.p_pickup),
                   "stack": _probability_list("--p-stack", args.p_stack, n_blocks),
                   "push": _probability_list("--p-push", args.p_push, n_blocks)}
@@ -161,12 +164,12 @@ def run(args: argparse.Namespace) -> int:
     max_steps = None if args.max_steps is None else _integer("--max-steps", args.max_steps, 0)
     time_limit = _number("--time-limit", args.time_limit)
     try:
-        result = task_planner.plan(state, transition, costs, block_classes=classes,
-                                   max_steps=max_steps, time_limit=time_limit)
+        result = task.plan(state, transition, costs, block_classes=classes,
+                           max_steps=max_steps, time_limit=time_limit)
     except task_planner.PlanningError as exc:
         raise UsageError(_flag_message(str(exc))) from None
     if args.json:
         print(json.dumps({"domain": args.domain, "blocks": n_blocks, **result.to_dict()}, indent=2))
     else:
-        print(_listing(result, n_blocks))
+        print(_listing(result, n_blocks, args.domain))
     return 0

@@ -16,7 +16,7 @@ import math
 
 from coordinator.cli import UsageError
 
-ACTIONS = ("pickup", "stack", "push")   # the container's; each domain lists its own
+ACTIONS = ("pickup", "stack", "push")   # the container's; each domain lists its own (stack_and_push adds stand)
 DEFAULT_LOAD = 4
 
 
@@ -30,13 +30,16 @@ def register(subparsers) -> None:
     p.add_argument("--domain", default="container", metavar="NAME",
                    help="domain to probe (default: container)")
     p.add_argument("--action", required=True, metavar="ACTION",
-                   help="one of: " + ", ".join(ACTIONS))
+                   help="the domain's probe actions (container: pickup, stack, push; "
+                        "stack_and_push: pickup, stack, push, stand)")
     p.add_argument("--true-size", required=True, type=float, metavar="S",
                    help="true block side length in the world (m)")
     p.add_argument("--believed-size", type=float, default=None, metavar="B",
                    help="block size Y computes the poses from (m; default: the true size)")
     p.add_argument("--load", type=int, default=DEFAULT_LOAD, metavar="K",
-                   help=f"blocks in the container (push) or blocks stacked (stack); default {DEFAULT_LOAD}")
+                   help="container: blocks loaded (push) or stacked (stack); stack_and_push: the "
+                        "tower height before a stack (0..N-1), pushed or left alone (1..N); "
+                        f"default {DEFAULT_LOAD}")
     p.add_argument("--trials", type=int, default=20, metavar="N", help="number of trials (default 20)")
     p.add_argument("--seed", type=int, default=0, metavar="SEED", help="random seed (default 0)")
     p.add_argument("--json", action="store_true", help="print one JSON object instead of a line")
@@ -56,7 +59,7 @@ def _check_size(flag: str, value: float) -> float:
 
 def run(args: argparse.Namespace) -> int:
     from sim_workers import domains
-    from sim_workers.probe import probe, probe_actions
+    from sim_workers.probe import probe, probe_actions, probe_loads
 
     known = domains.names()
     if args.domain not in known:
@@ -70,9 +73,12 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError(f"--action: {args.action!r} is not one of {', '.join(actions)}")
     true_size = _check_size("--true-size", args.true_size)
     believed = true_size if args.believed_size is None else _check_size("--believed-size", args.believed_size)
-    n_blocks = domains.load(args.domain).spec.n_blocks
-    if not 1 <= args.load <= n_blocks:
-        raise UsageError(f"--load: {args.load} is outside 1..{n_blocks}")
+    world_domain = domains.load(args.domain)
+    n_blocks = world_domain.spec.n_blocks
+    loads = probe_loads(world_domain, args.action)
+    if args.load not in loads:
+        raise UsageError(f"--load: {args.load} is outside {loads.start}..{loads.stop - 1} "
+                         f"for {args.action}")
     if args.trials < 1:
         raise UsageError(f"--trials: {args.trials} must be at least 1")
     if args.seed < 0:
@@ -84,7 +90,7 @@ def run(args: argparse.Namespace) -> int:
         out = {"domain": args.domain, **result.to_dict(), "seed": args.seed, "n_blocks": n_blocks}
         print(json.dumps(out, sort_keys=True))
         return 0
-    load = f", load {result.load}" if args.action in ("stack", "push") else ""
+    load = f", load {result.load}" if args.action != "pickup" else ""
     print(f"{args.domain} {args.action}: {result.successes}/{result.trials} succeeded, "
           f"success rate {result.success_rate:.3f} (true size {true_size:g} m, "
           f"believed {believed:g} m{load}, seed {args.seed})")

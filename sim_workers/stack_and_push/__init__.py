@@ -1,0 +1,216 @@
+"""The stack-and-push domain (the paper's real-robot task, /work/shared/DOMAINS.md sec. 3):
+stack cubes into a tower on a rail's start site, push the tower along the rail to the goal.
+"""
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from .. import domains
+from ..configuration import Configuration
+from ..properties import PropertyError, block_properties
+from . import probes, scene, state_mapping, trajectories
+from .spec import StackAndPushSpec
+
+MAX_BLOCKS = 8
+
+
+class StackAndPushDomain:
+    """Cubes, a guide rail and a floating gripper; L = the blocks' side lengths."""
+
+    name = "stack_and_push"
+
+    def __init__(self, spec: StackAndPushSpec | None = None, **overrides) -> None:
+        spec = spec or StackAndPushSpec()
+        if overrides:
+            unknown = set(overrides) - {f.name for f in dataclasses.fields(StackAndPushSpec)}
+            if unknown:
+                raise ValueError(f"stack_and_push domain: unknown option(s) {sorted(unknown)}")
+            spec = dataclasses.replace(spec, **overrides)
+        if not 1 <= spec.n_blocks <= MAX_BLOCKS:
+            raise ValueError(f"n_blocks: {spec.n_blocks} is outside [1, {MAX_BLOCKS}]")
+        self.spec = spec
+
+    # -- data -----------------------------------------------------------------------
+    @property
+    def object_names(self) -> list[str]:
+        return self.spec.object_names
+
+    @property
+    def block_names(self) -> list[str]:
+        return self.spec.block_names
+
+    @property
+    def workspace(self):
+        """The motion planner's bounds: room above a tower of every block at the largest
+        prior size plus a held block and the palm (the loop's default stops at 0.6 m)."""
+        from planner.motion import Bounds   # the planner half; imported only when asked
+
+        return Bounds(np.array([-0.5, -0.6, 0.0, -np.pi]), np.array([1.2, 0.6, 0.75, np.pi]))
+
+    def true_properties(self, sizes_variation: bool = False) -> dict:
+        """The hidden truth: all blocks `true_size`, or (variation "sizes") one 20 % larger."""
+        sizes = np.full(self.spec.n_blocks, self.spec.true_size)
+        if sizes_variation:
+            sizes[0] *= 1.2
+        return {"block_sizes": sizes}
+
+    def properties(self, props: dict) -> dict:
+        """Validated properties: block_sizes (n,), density, block_masses (n,); idempotent."""
+        if not isinstance(props, dict):
+            raise PropertyError("properties: expected a mapping with 'block_sizes'")
+        return block_properties(props, self.spec.n_blocks, self.spec.density)
+
+    def props_from_row(self, row: np.ndarray) -> dict:
+        """A row of L (one size for every block, or one per block) as properties."""
+        return {"block_sizes": np.broadcast_to(np.asarray(row, dtype=np.float64), (self.spec.n_blocks,))}
+
+    # -- physics ---------------------------------------------------------------------
+    def build(self, client: int, props: dict) -> scene.SceneHandles:
+        p = self.properties(props)
+        return scene.build_scene(client, self.spec, p["block_sizes"], p["block_masses"])
+
+    def initial_configuration(self, props: dict) -> Configuration:
+        return state_mapping.initial_configuration(self.spec, self.properties(props)["block_sizes"])
+
+    def place(self, config: Configuration, props: dict) -> Configuration:
+        return state_mapping.place_for_sizes(self.spec, config, self.properties(props)["block_sizes"])
+
+    def after_action(self, config: Configuration, action: str) -> Configuration:
+        """After a push a helper clears the goal area: every block lying in it (in the rail
+        between goal_x) goes to its delivered slot and counts as is_in(B,goal)."""
+        if not action.replace(" ", "").startswith("push("):
+            return config
+        spec = self.spec
+        obj = config.objects
+        moved = [i for i in range(spec.n_blocks) if state_mapping.in_goal_area(spec, obj[i, :3])]
+        if not moved:
+            return config
+        objects = obj.copy()
+        half = _half_heights(obj, moved)
+        for i in moved:
+            xy = spec.delivered_slot(i)
+            objects[i] = [xy[0], xy[1], half[i], 0, 0, 0, 1]
+        return Configuration(config.robot, objects)
+
+    # -- Y and Y^-1 ------------------------------------------------------------------
+    def symbolic_state(self, config: Configuration) -> frozenset[str]:
+        return state_mapping.symbolic_state(self.spec, config)
+
+    def action_pose(self, props: dict, config: Configuration, action: str) -> np.ndarray:
+        return state_mapping.action_pose(self.spec, self.properties(props)["block_sizes"], config, action)
+
+    def action_trajectory(self, config: Configuration, action: str, key: np.ndarray,
+                          transit: np.ndarray | None = None) -> np.ndarray:
+        return trajectories.action_trajectory(self.spec, config, action, key, transit)
+
+    def transit_end_time(self, config: Configuration, action: str, key: np.ndarray,
+                         transit: np.ndarray | None = None) -> float:
+        return trajectories.transit_end_time(self.spec, config, action, key, transit)
+
+    def gripper_box(self, held_size: float = 0.0) -> tuple[np.ndarray, float]:
+        """(half extents, z offset of its centre above the fingertips) of a box around the
+        gripper: fingers at their widest and the palm, plus a held block hanging below."""
+        fx, fy, fz = self.spec.finger_half
+        top = self.spec.palm_offset + self.spec.palm_half[2]
+        half = np.array([fx + 0.001, self.spec.max_opening / 2 + 2 * fy, (top + held_size) / 2])
+        return half, (top - held_size) / 2
+
+    def default_transit(self, start: np.ndarray, pre: np.ndarray) -> np.ndarray:
+        """Up, across at a safe height, down: (M, 5) waypoints."""
+        return trajectories.default_transit(self.spec, start, pre)
+
+    def obstacles(self, config: Configuration, size: float) -> list[tuple[np.ndarray, np.ndarray]]:
+        """Axis-aligned boxes (centre, half extents) around the rail walls and every block
+        not in the hand or delivered, for the motion planner's collision check."""
+        spec = self.spec
+        labels, _ = state_mapping.block_labels(spec, config)
+        x0, x1 = spec.rail_x
+        yc = spec.rail_half_gap + spec.wall_thickness / 2
+        wall = np.array([(x1 - x0) / 2, spec.wall_thickness / 2, spec.wall_height / 2])
+        boxes = [(np.array([(x0 + x1) / 2, s * yc, spec.wall_height / 2]), wall.copy()) for s in (-1, 1)]
+        for i, label in enumerate(labels):
+            if label not in (state_mapping.HELD, state_mapping.GOAL):
+                # s / sqrt(2) in x and y holds a cube of side s at any yaw.
+                boxes.append((config.objects[i, :3].copy(), np.array([0.71 * size, 0.71 * size, 0.5 * size])))
+        return boxes
+
+    def pre_pose(self, config: Configuration, action: str, key: np.ndarray) -> np.ndarray:
+        holding = any(a.startswith("is_holding") for a in self.symbolic_state(config))
+        return trajectories.pre_pose(self.spec, action, key, holding)
+
+    def measurements(self, config: Configuration) -> np.ndarray:
+        """The finger opening, then planar block positions (x, y per block); no heights
+        (a depth reading of a block would give its size away)."""
+        return np.concatenate([[config.robot[4]], config.objects[:, :2].ravel()])
+
+    def measurement_model(self) -> tuple[np.ndarray, np.ndarray]:
+        """(indices, std) of the likelihood's channels: the finger opening only (2 mm);
+        landing positions after a topple are chaotic (the container's finding)."""
+        return np.array([0]), np.array([0.002])
+
+    # -- probe (tmoc probe, T* estimates) --------------------------------------------
+    probe_actions = probes.PROBE_ACTIONS
+
+    def probe_trial(self, action: str, true_size: float, believed_size: float, load_k: int,
+                    rng: np.random.Generator) -> bool:
+        """One seeded trial of `action` in this (already jittered) world."""
+        return probes.probe_trial(self, action, true_size, believed_size, load_k, rng)
+
+    def probe_loads(self, action: str) -> range:
+        """Tower heights a probe of `action` accepts (``sim_workers.probe.probe`` checks
+        them): a stack onto 0..n-1 (a block must stay free; 0 is the empty start site,
+        which ``t_star_probe_jobs`` asks for), a push or stand of 1..n."""
+        n = self.spec.n_blocks
+        return range(n) if action == "stack" else range(1, n + 1)
+
+    # -- T* (what `tmoc experiment` compares the learned T against) -------------------
+    @staticmethod
+    def t_star_probe_jobs(n_blocks: int) -> list[tuple[str, int]]:
+        """(action, tower height) of the probes T* needs: pickup; a pickup then a stack
+        onto a tower of h, h = 0..n-1; a push of a tower of k, k = 1..n."""
+        return ([("pickup", 1)] + [("stack", h) for h in range(n_blocks)]
+                + [("push", k) for k in range(1, n_blocks + 1)])
+
+    @staticmethod
+    def t_star_from_probes(successes: dict, trials: int, n_blocks: int) -> dict:
+        """T* from probe counts: pickup is its rate; stack[h] is the rate of "pick up, then
+        stack onto a tower of h" divided by the pickup rate (clipped to [0, 1]; 0 if no
+        pickup succeeded); push[k-1] is the rate of pushing a tower of k."""
+        p_pickup = successes[("pickup", 1)] / trials
+        stack = [0.0 if p_pickup == 0 else float(min(1.0, successes[("stack", h)] / trials / p_pickup))
+                 for h in range(n_blocks)]
+        push = [successes[("push", k)] / trials for k in range(1, n_blocks + 1)]
+        return {"pickup": float(p_pickup), "stack": stack, "push": [float(p) for p in push]}
+
+    def check_action(self, action: str) -> None:
+        name, args = state_mapping.parse_action(action)
+        if name == "pickup":
+            if len(args) != 3 or args[0] != "r":
+                raise ValueError(f"action: expected pickup(r,B,L), got {action!r}")
+            state_mapping.block_index(self.spec, args[1])
+            if args[2] not in state_mapping.PICKUP_PLACES:
+                raise ValueError(f"action: pickup from {args[2]!r} (expected init, table or rail)")
+        elif name == "stack":
+            if len(args) != 3 or args[0] != "r" or args[2] != "tower":
+                raise ValueError(f"action: expected stack(r,B,tower), got {action!r}")
+            state_mapping.block_index(self.spec, args[1])
+        elif args != ["r", "tower", "start", "goal"]:
+            raise ValueError(f"action: expected push(r,tower,start,goal), got {action!r}")
+
+
+def _half_heights(objects: np.ndarray, rows: list[int]) -> dict[int, float]:
+    """Half sizes of delivered blocks, read off how they rest (the helper sets each down
+    on the table): a block on the floor has its centre at half its size, one resting on
+    another is that block's top plus half its own. Clamped to the sizes properties accept."""
+    half: dict[int, float] = {}
+    for i in sorted(rows, key=lambda r: objects[r, 2]):
+        below = [j for j in half if np.linalg.norm(objects[j, :2] - objects[i, :2]) < 0.02]
+        z = objects[i, 2]
+        h = z - (objects[below[-1], 2] + half[below[-1]]) if below else z
+        half[i] = float(np.clip(h, 0.005, 0.05))
+    return half
+
+
+domains.register("stack_and_push", StackAndPushDomain)

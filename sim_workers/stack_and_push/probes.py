@@ -1,0 +1,82 @@
+"""Stack-and-push probe trials (``tmoc probe --domain stack_and_push``): how each action
+kind is set up in a true world and judged through Y^-1.
+
+``load_k`` is the tower height: the blocks already stacked before a probed ``stack``, the
+tower pushed by ``push``, the tower left alone by ``stand``. Every tower block is placed
+with the same jitter as the supply row (``PLACEMENT_JITTER_M``, ``YAW_JITTER_RAD``), so a
+tall tower is a little crooked, as a stacked one is; with the friction jitter of
+``sim_workers.probe.jittered_domain`` that is what grades the push curve.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from ..configuration import Configuration, quat_from_yaw
+from ..grounded_world import GroundedWorld
+from ..probe import PLACEMENT_JITTER_M, YAW_JITTER_RAD, act, jitter_planar
+
+PROBE_ACTIONS = ("pickup", "stack", "push", "stand")
+STAND_S = 2.0            # how long a tower is left alone in the `stand` probe
+TOWER_JITTER_M = PLACEMENT_JITTER_M / 2
+
+
+def tower_atoms(k: int) -> set[str]:
+    """The `on` chain of b1..bk stacked in order on the start site."""
+    return {f"on(b{i + 1},{'start' if i == 0 else f'b{i}'})" for i in range(k)}
+
+
+def tower_configuration(domain, sizes: np.ndarray, load_k: int, rng: np.random.Generator) -> Configuration:
+    """b1..bk stacked on the start site (each jittered in the plane and in yaw), the rest in
+    the supply row (jittered), the gripper up and clear of the tower."""
+    spec = domain.spec
+    config = domain.initial_configuration({"block_sizes": sizes})
+    objects = jitter_planar(rng, config.objects, range(spec.n_blocks))
+    # A stack releases over the observed top block, so a block lands off the one below it
+    # by the robot's placement error (half the supply row's jitter: the gripper's fingers
+    # centre it as they open) and the offsets add up: a random walk, as in a built tower.
+    step = TOWER_JITTER_M
+    xy = spec.start_xy()
+    for i in range(load_k):
+        xy = xy + np.clip(rng.normal(0, step, 2), -2 * step, 2 * step)
+        # Heights only order the tower (place() restacks it from the floor).
+        objects[i, :3] = [xy[0], xy[1], (i + 0.5) * sizes[i]]
+        objects[i, 3:] = quat_from_yaw(rng.uniform(-YAW_JITTER_RAD, YAW_JITTER_RAD))
+    robot = config.robot.copy()
+    robot[0] = spec.start_x - 0.2
+    robot[2] = max(spec.carry_height, float(np.sum(sizes[:load_k])) + spec.carry_margin)
+    return domain.place(Configuration(robot, objects), {"block_sizes": sizes})
+
+
+def probe_trial(domain, action: str, true_size: float, believed_size: float, load_k: int,
+                rng: np.random.Generator) -> bool:
+    """pickup: one random block from the supply row; stack: one more block onto a tower of
+    `load_k`; push: a tower of `load_k` to the goal; stand: a tower of `load_k` left alone."""
+    n = domain.spec.n_blocks
+    if action == "stack" and not 0 <= load_k < n:
+        raise ValueError(f"load: stack onto a tower of {load_k} needs a free block (0..{n - 1})")
+    if action in ("push", "stand") and not 1 <= load_k <= n:
+        raise ValueError(f"load: a tower of {load_k} is outside 1..{n}")
+    sizes = np.full(n, true_size)
+    truth = {"block_sizes": sizes}
+    believed = {"block_sizes": np.full(n, believed_size)}
+    with GroundedWorld(domain) as world:
+        if action == "pickup":
+            config = domain.initial_configuration(truth)
+            config = world.reset(Configuration(config.robot, jitter_planar(rng, config.objects, range(n))), truth)
+            b = f"b{int(rng.integers(n)) + 1}"
+            out = act(world, domain, config, believed, f"pickup(r,{b},init)")
+            return f"is_holding(r,{b})" in out.state
+        config = world.reset(tower_configuration(domain, sizes, load_k, rng), truth)
+        if action == "push":
+            out = act(world, domain, config, believed, "push(r,tower,start,goal)")
+            return all(f"is_in(b{i + 1},goal)" in out.state for i in range(load_k))
+        if action == "stand":
+            still = np.array([[0.0, *config.robot], [STAND_S, *config.robot]])
+            out = world.execute(still, "stand")
+            return tower_atoms(load_k) <= out.state and "hand_empty(r)" in out.state
+        b = f"b{load_k + 1}"                         # stack: pick the next block, put it on top
+        out = act(world, domain, config, believed, f"pickup(r,{b},init)")
+        if f"is_holding(r,{b})" not in out.state:
+            return False
+        out = act(world, domain, out.configuration, believed, f"stack(r,{b},tower)")
+        return tower_atoms(load_k + 1) <= out.state and "hand_empty(r)" in out.state

@@ -1,0 +1,103 @@
+"""The stack-and-push scene as data: rail, supply row, start site, goal area, gripper,
+physics settings (docs: /work/shared/DOMAINS.md section 3)."""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class StackAndPushSpec:
+    """Everything fixed about the scene; the unknown block sizes are not here (they are L)."""
+
+    n_blocks: int = 8
+    # Blocks: the truth the agent does not know, and its prior.
+    true_size: float = 0.045
+    prior_low: float = 0.030
+    prior_high: float = 0.060
+    density: float = 700.0          # kg/m^3, known to the agent (wood)
+    # Supply row beside the rail (y < 0), one slot per block along x.
+    init_row_x: float = -0.10
+    init_row_y: float = -0.14
+    row_pitch: float = 0.075
+    # The rail: two low walls along x; its floor is the table (z = 0).
+    rail_x: tuple[float, float] = (-0.10, 0.80)
+    rail_gap: float = 0.075         # inner width: the largest prior block plus clearance
+    wall_height: float = 0.010      # low, so fingers closing across y clear it
+    wall_thickness: float = 0.010
+    start_x: float = 0.0            # the start site (tower base) on the rail centre line
+    goal_x: tuple[float, float] = (0.45, 0.75)
+    goal_centre_x: float = 0.55     # where a push carries the tower's base centre
+    delivered_x: float = 1.05       # the helper puts delivered blocks in a row here
+    # Gripper: the container's floating parallel gripper (same geometry and limits).
+    palm_half: tuple[float, float, float] = (0.006, 0.055, 0.010)
+    finger_half: tuple[float, float, float] = (0.012, 0.005, 0.030)
+    max_opening: float = 0.09
+    grip_force: float = 5.0         # N per finger
+    finger_speed: float = 0.15      # m/s
+    base_max_force: float = 40.0    # N, the constraint that carries the floating base
+    # Friction (Bullet multiplies the two bodies' coefficients). The rail floor is the
+    # table: block-floor 0.8 * 0.5 = 0.40 at the nominal values.
+    mu_table: float = 0.5
+    mu_rail: float = 0.3            # the walls: block-wall 0.24, a smooth guide
+    mu_block: float = 0.8           # block-block 0.64
+    mu_finger: float = 1.5          # finger-block 1.20
+    # Physics. The container's 1/120 s step, but 100 solver iterations: at 50 a lone,
+    # perfectly aligned tower of eight 30-45 mm cubes creeps sideways and falls within
+    # 3 s (drift of the stacked contacts); at 100 it stands 6 s within 3 mm (measured).
+    time_step: float = 1.0 / 120.0
+    solver_iterations: int = 100
+    friction_anchor: bool = True    # Bullet's positional friction on the blocks (no creep)
+    # Y's rules in terms of the believed size s.
+    open_ratio: float = 1.15
+    grip_depth: float = 0.010
+    release_clearance: float = 0.004
+    approach_height: float = 0.08
+    carry_height: float = 0.20      # the minimum; stacks go higher (tower top + block + margin)
+    carry_margin: float = 0.05
+    push_tip_z: float = 0.008
+    push_gap: float = 0.004         # pusher face behind the tower's rearmost believed face
+    push_speed: float = 0.30        # m/s, stroke cruise speed (probe-tuned, see probes.py)
+    push_accel: float = 2.0         # m/s^2, speeding up
+    push_decel: float = 2.0         # m/s^2, slowing down at the goal
+    move_speed: float = 0.30
+    approach_speed: float = 0.10    # m/s, the last 8 cm down to a grasp or release
+    lift_speed: float = 0.30
+    settle_s: float = 1.0           # at most this long after the trajectory (stops at rest)
+    extra: dict = field(default_factory=dict, compare=False)
+
+    @property
+    def object_names(self) -> list[str]:
+        return self.block_names
+
+    @property
+    def block_names(self) -> list[str]:
+        return [f"b{i + 1}" for i in range(self.n_blocks)]
+
+    @property
+    def finger_length(self) -> float:
+        return 2.0 * self.finger_half[2]
+
+    @property
+    def palm_offset(self) -> float:
+        """Height of the palm centre above the fingertips."""
+        return self.finger_length + self.palm_half[2]
+
+    @property
+    def rail_half_gap(self) -> float:
+        return self.rail_gap / 2.0
+
+    def init_slot(self, i: int) -> np.ndarray:
+        """Nominal (x, y) of block i (0-based) in the supply row."""
+        return np.array([self.init_row_x + self.row_pitch * i, self.init_row_y])
+
+    def delivered_slot(self, i: int) -> np.ndarray:
+        return np.array([self.delivered_x, (i - (self.n_blocks - 1) / 2.0) * self.row_pitch])
+
+    def start_xy(self) -> np.ndarray:
+        return np.array([self.start_x, 0.0])
+
+    def max_tower_top(self) -> float:
+        """The highest a tower of every block at the prior's largest size reaches."""
+        return self.n_blocks * self.prior_high

@@ -1,0 +1,223 @@
+"""Y and Y^-1 for the stack-and-push domain, in plain numpy.
+
+Y^-1 (``symbolic_state``) reads where each block is from the configuration alone, never
+from sizes: held, in the tower (the ``on`` chain rooted at the start site), delivered
+(goal), in its supply slot (init), lying in the rail, or elsewhere on the table. Y
+(``action_pose``) turns believed sizes, the observed configuration and an action into the
+key pose (x, y, z, yaw, opening). ``place_for_sizes`` re-grounds an observation under one
+hypothesis: the tower is restacked from the rail floor with the hypothesis' sizes.
+"""
+from __future__ import annotations
+
+import re
+
+import numpy as np
+
+from ..configuration import Configuration, quat_from_yaw, quat_to_matrix
+from ..container.state_mapping import _grasp_yaw, _in_hand
+from .spec import StackAndPushSpec
+
+_ACTION = re.compile(r"^(pickup|stack|push)\(([^()]*)\)$")
+
+HELD, TOWER, GOAL, INIT, RAIL, TABLE = "held", "tower", "goal", "init", "rail", "table"
+PICKUP_PLACES = (INIT, TABLE, RAIL)
+
+# Y^-1 thresholds (metres), wide enough for any size validate_sizes accepts (0.01..0.10).
+UPRIGHT_COS = float(np.cos(np.radians(10.0)))  # a face within 10 degrees of up
+BOTTOM_DX = 0.03        # tower bottom: this close to the start site along the rail
+BOTTOM_MAX_Z = 0.055    # ... and resting on the floor (centre below half the largest size)
+ON_DXY = 0.02           # B on B2: centres this close in the plane
+ON_DZ = (0.005, 0.105)  # ... and B's centre this much higher (half sizes summed)
+INIT_RADIUS = 0.02
+FLOOR_Z = 0.055         # a block with its centre below this lies on the floor
+
+
+def parse_action(action: str) -> tuple[str, list[str]]:
+    m = _ACTION.match(action.replace(" ", ""))
+    if not m:
+        raise ValueError(f"action: cannot parse {action!r}")
+    return m.group(1), m.group(2).split(",")
+
+
+def block_index(spec: StackAndPushSpec, name: str) -> int:
+    if not re.fullmatch(r"b\d+", name) or not 1 <= int(name[1:]) <= spec.n_blocks:
+        raise ValueError(f"action: unknown block {name!r}")
+    return int(name[1:]) - 1
+
+
+def upright(quat: np.ndarray) -> bool:
+    """A cube rests on a face: one body axis is within 10 degrees of vertical."""
+    return bool(np.max(np.abs(quat_to_matrix(quat)[2, :])) > UPRIGHT_COS)
+
+
+def in_rail(spec: StackAndPushSpec, p: np.ndarray) -> bool:
+    return abs(p[1]) < spec.rail_half_gap and spec.rail_x[0] < p[0] < spec.rail_x[1]
+
+
+def in_goal_area(spec: StackAndPushSpec, p: np.ndarray) -> bool:
+    return in_rail(spec, p) and spec.goal_x[0] <= p[0] <= spec.goal_x[1]
+
+
+def tower_chain(spec: StackAndPushSpec, config: Configuration, held: set[int] | frozenset = frozenset()) -> list[int]:
+    """Block indices of the tower, bottom first: the ``on`` chain rooted at the start site."""
+    obj = config.objects
+    free = [i for i in range(spec.n_blocks) if i not in held and upright(obj[i, 3:])]
+    bottoms = [i for i in free if in_rail(spec, obj[i, :3]) and abs(obj[i, 0] - spec.start_x) < BOTTOM_DX
+               and obj[i, 2] < BOTTOM_MAX_Z]
+    if not bottoms:
+        return []
+    chain = [min(bottoms, key=lambda i: (obj[i, 2], abs(obj[i, 0] - spec.start_x), i))]
+    while True:
+        top = obj[chain[-1]]
+        above = [i for i in free if i not in chain
+                 and np.linalg.norm(obj[i, :2] - top[:2]) < ON_DXY
+                 and ON_DZ[0] < obj[i, 2] - top[2] < ON_DZ[1]]
+        if not above:
+            return chain
+        chain.append(min(above, key=lambda i: (obj[i, 2], i)))   # nothing between
+
+
+def _held(spec: StackAndPushSpec, config: Configuration) -> int | None:
+    """The block in the hand (the nearest, if several pass the in-hand test)."""
+    cands = [i for i in range(spec.n_blocks) if _in_hand(spec, config, config.objects[i, :3])]
+    if not cands:
+        return None
+    return min(cands, key=lambda i: float(np.linalg.norm(config.objects[i, :3] - config.robot[:3])))
+
+
+def block_labels(spec: StackAndPushSpec, config: Configuration) -> tuple[list[str], list[int]]:
+    """(label per block, tower chain bottom first)."""
+    h = _held(spec, config)
+    held = frozenset() if h is None else frozenset({h})
+    chain = tower_chain(spec, config, held)
+    labels = []
+    for i in range(spec.n_blocks):
+        p = config.objects[i, :3]
+        if i in held:
+            labels.append(HELD)
+        elif i in chain:
+            labels.append(TOWER)
+        elif p[0] > spec.delivered_x - 0.05:
+            labels.append(GOAL)
+        elif np.linalg.norm(p[:2] - spec.init_slot(i)) < INIT_RADIUS:
+            labels.append(INIT)
+        elif in_rail(spec, p):
+            labels.append(RAIL)
+        else:
+            labels.append(TABLE)
+    return labels, chain
+
+
+def symbolic_state(spec: StackAndPushSpec, config: Configuration) -> frozenset[str]:
+    """Y^-1: the ground atoms that hold in a configuration."""
+    labels, chain = block_labels(spec, config)
+    names = spec.block_names
+    atoms = set()
+    for name, label in zip(names, labels):
+        if label == HELD:
+            atoms.add(f"is_holding(r,{name})")
+        elif label != TOWER:
+            atoms.add(f"is_in({name},{label})")
+    for k, i in enumerate(chain):
+        atoms.add(f"on({names[i]},{'start' if k == 0 else names[chain[k - 1]]})")
+    if HELD not in labels:
+        atoms.add("hand_empty(r)")
+    return frozenset(atoms)
+
+
+def _rear_half(s: float, quat: np.ndarray) -> float:
+    """How far a cube of side s, turned by its folded yaw, reaches behind its centre."""
+    y = _grasp_yaw(quat)
+    return 0.5 * s * (abs(np.cos(y)) + abs(np.sin(y)))
+
+
+def action_pose(spec: StackAndPushSpec, sizes: np.ndarray, config: Configuration, action: str) -> np.ndarray:
+    """Y(L, s, a): the key pose (x, y, z, yaw, opening) of `action` under believed sizes."""
+    name, args = parse_action(action)
+    obj = config.objects
+    if name == "pickup":
+        i = block_index(spec, args[1])
+        s = sizes[i]
+        z = max(s - spec.grip_depth, 0.003)
+        return np.array([obj[i, 0], obj[i, 1], z, _grasp_yaw(obj[i, 3:]), spec.open_ratio * s])
+    _, chain = block_labels(spec, config)
+    if name == "stack":
+        i = block_index(spec, args[1])
+        s = sizes[i]
+        if chain:
+            # Over the observed tower's base (its axis), faces aligned with the top block.
+            # Releasing over the top block instead chases its offset: each block then lands
+            # a little further out and the lean grows geometrically (1, 3, 6, 11 mm over
+            # four stacks, then the tower falls; measured).
+            top = obj[chain[-1]]
+            xy, yaw = obj[chain[0], :2], _grasp_yaw(top[3:])
+        else:
+            xy, yaw = spec.start_xy(), 0.0
+        # The release height is the believed tower height: its error grows as h * (s_b - s_t).
+        z = float(sum(sizes[j] for j in chain)) + spec.release_clearance + (s - spec.grip_depth)
+        return np.array([xy[0], xy[1], z, yaw, spec.open_ratio * s])
+    # push(r,tower,start,goal): closed fingers behind the tower's rearmost (believed) face.
+    if chain:
+        rear = min(obj[j, 0] - _rear_half(sizes[j], obj[j, 3:]) for j in chain)
+        y = obj[chain[0], 1]
+    else:
+        rear, y = spec.start_x - 0.5 * float(np.max(sizes)), 0.0
+    x = rear - spec.finger_half[0] - spec.push_gap
+    return np.array([x, y, spec.push_tip_z, 0.0, 0.0])
+
+
+def push_end_x(spec: StackAndPushSpec, config: Configuration, action: str, key: np.ndarray) -> float:
+    """Where the stroke ends: the tool point when the tower's base reaches the goal centre."""
+    _, chain = block_labels(spec, config)
+    base_x = config.objects[chain[0], 0] if chain else spec.start_x
+    return float(key[0] + (spec.goal_centre_x - base_x))
+
+
+def tower_top(spec: StackAndPushSpec, config: Configuration) -> float:
+    """Observed top of the tower (z of the top block's centre plus its largest half size)."""
+    _, chain = block_labels(spec, config)
+    if not chain:
+        return 0.0
+    return float(config.objects[chain[-1], 2] + spec.prior_high / 2)
+
+
+def place_for_sizes(spec: StackAndPushSpec, config: Configuration, sizes: np.ndarray) -> Configuration:
+    """Re-ground an observed configuration under one hypothesis of the block sizes.
+
+    Planar poses come from the observation, heights from the hypothesis: the tower is
+    restacked from the floor in its observed order, a block lying on the floor rests on
+    it, a delivered block sits in its slot, a held block stays where it was seen and the
+    fingers close on its width. A block neither lying flat nor in the tower (leaning,
+    resting on another) keeps its observed pose: its geometry says nothing about L.
+    """
+    labels, chain = block_labels(spec, config)
+    objects = config.objects.copy()
+    robot = config.robot.copy()
+    z = 0.0
+    for j in chain:
+        p = config.objects[j]
+        s = sizes[j]
+        objects[j] = np.concatenate([[p[0], p[1], z + s / 2], quat_from_yaw(_grasp_yaw(p[3:]))])
+        z += s
+    for i, label in enumerate(labels):
+        p = config.objects[i]
+        s = sizes[i]
+        if label == HELD:
+            objects[i] = np.concatenate([p[:3], quat_from_yaw(robot[3])])
+            robot[4] = s
+        elif label == GOAL:
+            xy = spec.delivered_slot(i)
+            objects[i] = [xy[0], xy[1], s / 2, 0, 0, 0, 1]
+        elif label != TOWER and upright(p[3:]) and p[2] < FLOOR_Z:
+            objects[i] = np.concatenate([[p[0], p[1], s / 2], quat_from_yaw(_grasp_yaw(p[3:]))])
+    return Configuration(robot, objects)
+
+
+def initial_configuration(spec: StackAndPushSpec, sizes: np.ndarray) -> Configuration:
+    """Every block in its supply slot, the gripper up and open above the start site."""
+    objects = np.zeros((spec.n_blocks, 7))
+    for i in range(spec.n_blocks):
+        xy = spec.init_slot(i)
+        objects[i] = [xy[0], xy[1], sizes[i] / 2, 0, 0, 0, 1]
+    robot = np.array([spec.start_x, 0.0, spec.carry_height, 0.0, spec.max_opening - 0.005])
+    return Configuration(robot, objects)

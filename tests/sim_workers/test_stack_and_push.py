@@ -1,0 +1,352 @@
+"""The stack-and-push domain's physics half: Y^-1 and Y on hand-built configurations (no
+physics), then the probe's physics claims (seeded trials in grounded worlds).
+
+The physics claims are the domain's calibration at true size 0.040 m, 16 trials, seed 0
+(one child generator per trial, so the figures are exact and repeatable): a right-sized
+pickup and a stack onto four work, a 25 % wrong belief breaks the grasp, a short tower
+pushes, a tall one falls (with a graded height in between) and a tower of eight left
+alone stands. One claim goes through the installed ``tmoc probe`` console script, as a
+user runs it; the rest call ``sim_workers.probe.probe`` (the same code, in-process).
+"""
+from __future__ import annotations
+
+import functools
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from sim_workers.configuration import Configuration, quat_from_yaw
+from sim_workers.domains import load
+from sim_workers.probe import probe, probe_loads
+from sim_workers.stack_and_push import state_mapping as sm
+from sim_workers.stack_and_push.probes import tower_atoms, tower_configuration
+from sim_workers.stack_and_push.spec import StackAndPushSpec
+
+SPEC = StackAndPushSpec()
+N = SPEC.n_blocks
+S = 0.040
+UPRIGHT = [0.0, 0.0, 0.0, 1.0]
+PUSH = "push(r,tower,start,goal)"
+
+
+def base(s: float = S) -> Configuration:
+    return sm.initial_configuration(SPEC, np.full(N, s))
+
+
+def quat_about_x(angle: float) -> np.ndarray:
+    return np.array([np.sin(angle / 2), 0.0, 0.0, np.cos(angle / 2)])
+
+
+def tower(k: int, x: float = SPEC.start_x, s: float = S, offsets=None, yaws=None,
+          config: Configuration | None = None) -> Configuration:
+    """b1..bk stacked upright at (x, 0) (each shifted by offsets[i] in the plane and turned
+    by yaws[i]), everything else as in `config` (default: the initial configuration)."""
+    config = base(s) if config is None else config
+    objects = config.objects.copy()
+    for i in range(k):
+        dx, dy = (0.0, 0.0) if offsets is None else offsets[i]
+        objects[i] = [x + dx, dy, (i + 0.5) * s, *quat_from_yaw(0.0 if yaws is None else yaws[i])]
+    return Configuration(config.robot, objects)
+
+
+def atoms(tower_k: int = 0, **where) -> frozenset[str]:
+    """b1..b{tower_k} in the `on` chain from the start site, the rest at init unless told,
+    hand empty."""
+    out = set(tower_atoms(tower_k)) | {"hand_empty(r)"}
+    for i in range(tower_k + 1, N + 1):
+        out.add(f"is_in(b{i},{where.get(f'b{i}', 'init')})")
+    return frozenset(out)
+
+
+# -- Y^-1 ------------------------------------------------------------------------------------
+def test_initial_configuration_every_block_at_init_hand_empty_no_tower():
+    state = sm.symbolic_state(SPEC, base())
+    assert state == frozenset({"hand_empty(r)", *(f"is_in(b{i},init)" for i in range(1, N + 1))})
+    assert not any(a.startswith("on(") for a in state)
+    # The domain object reads the same, and it does not depend on the sizes it was laid out for.
+    domain = load("stack_and_push")
+    assert domain.symbolic_state(domain.initial_configuration({"block_sizes": np.full(N, 0.055)})) == state
+
+
+def test_tower_of_three_on_the_start_site_is_an_on_chain():
+    state = sm.symbolic_state(SPEC, tower(3))
+    assert {"on(b1,start)", "on(b2,b1)", "on(b3,b2)"} <= state
+    assert state == atoms(3)
+    assert not any(a.startswith(("is_in(b1,", "is_in(b2,", "is_in(b3,")) for a in state)
+
+
+def test_crooked_tower_keeps_its_order_by_height_not_by_name():
+    # Built b3 at the bottom, then b1, then b2; a few mm off each other and turned a little.
+    objects = base().objects.copy()
+    for level, (i, dx, yaw) in enumerate([(2, 0.003, 0.05), (0, -0.004, -0.04), (1, 0.002, 0.1)]):
+        objects[i] = [dx, 0.002 * level, (level + 0.5) * S, *quat_from_yaw(yaw)]
+    state = sm.symbolic_state(SPEC, Configuration(base().robot, objects))
+    assert {"on(b3,start)", "on(b1,b3)", "on(b2,b1)"} <= state
+    assert not any(a.startswith("on(") and a not in ("on(b3,start)", "on(b1,b3)", "on(b2,b1)")
+                   for a in state)
+
+
+@pytest.mark.parametrize("x, tower_k", [(SPEC.start_x, 0), (0.25, 2)], ids=["on-the-start-site", "beside-a-tower"])
+def test_block_toppled_in_the_rail_is_in_rail_not_in_the_tower(x, tower_k):
+    """A cube turned 45 degrees about x (resting on an edge, no face up) lying in the rail."""
+    k = tower_k + 1                                       # the toppled block
+    config = tower(tower_k)
+    objects = config.objects.copy()
+    objects[k - 1] = [x, 0.003, S / np.sqrt(2), *quat_about_x(np.pi / 4)]
+    config = Configuration(config.robot, objects)
+    assert not sm.upright(objects[k - 1, 3:])
+    state = sm.symbolic_state(SPEC, config)
+    assert f"is_in(b{k},rail)" in state
+    assert not any(a.startswith(f"on(b{k},") or a.endswith(f",b{k})") for a in state)
+    assert state == atoms(tower_k, **{f"b{k}": "rail"})
+    # Upright at the same spot it would be the tower's base (or, beside it, still in the rail).
+    objects[k - 1] = [x, 0.003, S / 2, *UPRIGHT]
+    upright_state = sm.symbolic_state(SPEC, Configuration(config.robot, objects))
+    assert (f"on(b{k},start)" in upright_state) == (tower_k == 0)
+
+
+def test_block_on_its_side_is_upright_again_and_held_block_is_not_in_the_tower():
+    # A cube that rolled a quarter turn rests on another face: still a tower block.
+    config = tower(2)
+    objects = config.objects.copy()
+    objects[1, 3:] = quat_about_x(np.pi / 2)
+    assert sm.symbolic_state(SPEC, Configuration(config.robot, objects)) == atoms(2)
+    # The gripper lifting b3 off the top of a tower of three: held, and the chain stops at b2.
+    lifted = tower(3)
+    robot = np.array([0.0, 0.0, 2.5 * S + (S / 2 - SPEC.grip_depth), 0.0, S])
+    objects = lifted.objects.copy()
+    objects[2, 2] += 0.02
+    robot[2] += 0.02
+    state = sm.symbolic_state(SPEC, Configuration(robot, objects))
+    assert state == (atoms(2) - {"is_in(b3,init)", "hand_empty(r)"}) | {"is_holding(r,b3)"}
+
+
+def test_after_a_push_blocks_in_the_goal_area_are_delivered():
+    domain = load("stack_and_push")
+    offsets = [(0.002, -0.001), (-0.003, 0.002), (0.001, 0.004)]
+    pushed = tower(3, x=SPEC.goal_centre_x, offsets=offsets, yaws=[0.04, -0.03, 0.1])
+    objects = pushed.objects.copy()
+    objects[3] = [0.30, 0.004, S / 2, *quat_from_yaw(0.2)]            # b4 fell off short of the goal
+    objects[4] = [0.60, 0.10, S / 2, *UPRIGHT]                        # b5 off the rail beside the goal
+    config = Configuration(pushed.robot, objects)
+    # Off the start site the pushed tower is no tower: its blocks lie in the rail.
+    assert sm.symbolic_state(SPEC, config) == atoms(
+        0, b1="rail", b2="rail", b3="rail", b4="rail", b5="table")
+    after = domain.after_action(config, PUSH)
+    assert sm.symbolic_state(SPEC, after) == atoms(
+        0, b1="goal", b2="goal", b3="goal", b4="rail", b5="table")
+    for i in range(3):                                               # set down upright in its slot
+        np.testing.assert_allclose(after.objects[i, :2], SPEC.delivered_slot(i))
+        assert after.objects[i, 2] == pytest.approx(S / 2)
+        np.testing.assert_allclose(after.objects[i, 3:], UPRIGHT)
+    np.testing.assert_array_equal(after.objects[3:], config.objects[3:])
+    np.testing.assert_array_equal(after.robot, config.robot)
+    np.testing.assert_array_equal(config.objects, objects)           # the input is not modified
+    # A delivered configuration re-grounds under any hypothesis without changing its atoms.
+    placed = domain.place(after, {"block_sizes": np.full(N, 0.055)})
+    assert sm.symbolic_state(SPEC, placed) == sm.symbolic_state(SPEC, after)
+    assert placed.objects[0, 2] == pytest.approx(0.055 / 2)
+
+
+def test_after_action_changes_nothing_elsewhere():
+    domain = load("stack_and_push")
+    at_goal = tower(3, x=SPEC.goal_centre_x)
+    assert domain.after_action(at_goal, "stack(r,b4,tower)") is at_goal     # not a push
+    assert domain.after_action(at_goal, "pickup(r,b4,init)") is at_goal
+    at_start = tower(3)                                                    # a push that did not arrive
+    assert domain.after_action(at_start, PUSH) is at_start
+
+
+# -- Y ---------------------------------------------------------------------------------------
+BELIEVED = np.array([0.030, 0.034, 0.038, 0.042, 0.046, 0.050, 0.054, 0.058])
+
+
+def test_stack_release_height_grows_by_the_believed_sizes_of_the_tower_below():
+    offsets = [(0.002 * (i % 3) - 0.002, 0.001 * i) for i in range(N)]
+    yaws = [0.03 * (-1) ** i for i in range(N)]
+    zs = []
+    for k in range(6):
+        config = tower(k, offsets=offsets, yaws=yaws)
+        assert sm.symbolic_state(SPEC, config) == atoms(k)
+        pose = sm.action_pose(SPEC, BELIEVED, config, "stack(r,b8,tower)")
+        if k:                       # over the observed tower, faces aligned with its top block
+            # Close enough to the top block that the released block reads on(b8, top).
+            assert np.linalg.norm(pose[:2] - config.objects[k - 1, :2]) < sm.ON_DXY
+            assert pose[3] == pytest.approx(yaws[k - 1])
+        else:                       # an empty site: the start site itself
+            np.testing.assert_allclose(pose[:2], SPEC.start_xy())
+            assert pose[3] == 0.0
+        assert pose[2] == pytest.approx(BELIEVED[:k].sum() + SPEC.release_clearance
+                                        + BELIEVED[7] - SPEC.grip_depth)
+        assert pose[4] == pytest.approx(SPEC.open_ratio * BELIEVED[7])
+        zs.append(pose[2])
+    # Delta z over the empty site = the sum of the believed sizes of the tower below.
+    np.testing.assert_allclose(np.array(zs) - zs[0], np.cumsum([0.0, *BELIEVED[:5]]))
+    assert np.all(np.diff(zs) > 0)
+
+
+def test_stack_height_depends_only_on_the_tower_and_the_held_block():
+    config = tower(4)
+    small = sm.action_pose(SPEC, np.full(N, 0.040), config, "stack(r,b8,tower)")
+    large = sm.action_pose(SPEC, np.full(N, 0.050), config, "stack(r,b8,tower)")
+    # Four blocks below, plus the held block's own grip: 5 x 10 mm.
+    assert large[2] - small[2] == pytest.approx(5 * 0.010)
+    # Blocks neither in the tower nor held (b5..b7, in the supply row) do not move it.
+    other = np.full(N, 0.040)
+    other[4:7] = 0.060
+    np.testing.assert_array_equal(sm.action_pose(SPEC, other, config, "stack(r,b8,tower)"), small)
+    # The true sizes of the configuration do not matter either: only where the blocks are.
+    assert sm.action_pose(SPEC, np.full(N, 0.040), tower(4, s=0.050), "stack(r,b8,tower)")[2] \
+        == pytest.approx(small[2])
+
+
+@pytest.mark.parametrize("place", ["init", "rail"])
+def test_pickup_pose_scales_with_the_believed_size(place):
+    config = base()
+    objects = config.objects.copy()
+    if place == "rail":
+        objects[2] = [0.32, -0.004, S / 2, *quat_from_yaw(1.0)]   # folded: 1.0 - pi/2
+    else:
+        objects[2, :2] += [0.004, -0.003]
+        objects[2, 3:] = quat_from_yaw(0.1)
+    config = Configuration(config.robot, objects)
+    assert f"is_in(b3,{place})" in sm.symbolic_state(SPEC, config)
+    poses = []
+    for s in (0.030, 0.040, 0.050):
+        sizes = np.full(N, 0.045)
+        sizes[2] = s                                       # only b3's belief matters
+        pose = sm.action_pose(SPEC, sizes, config, f"pickup(r,b3,{place})")
+        np.testing.assert_allclose(pose[:2], objects[2, :2])
+        assert pose[2] == pytest.approx(s - SPEC.grip_depth)
+        assert pose[3] == pytest.approx(1.0 - np.pi / 2 if place == "rail" else 0.1)
+        assert pose[4] == pytest.approx(SPEC.open_ratio * s)
+        poses.append(pose)
+    poses = np.array(poses)
+    np.testing.assert_allclose(np.diff(poses[:, 2]), [0.010, 0.010])
+    np.testing.assert_allclose(np.diff(poses[:, 4]), [SPEC.open_ratio * 0.010] * 2)
+    np.testing.assert_allclose(np.diff(poses[:, [0, 1, 3]], axis=0), 0.0)
+
+
+@pytest.mark.parametrize("k", range(N + 1))
+def test_push_pose_is_finite_behind_the_tower(k):
+    domain = load("stack_and_push")
+    rng = np.random.default_rng(k)
+    if k:
+        config = tower_configuration(domain, np.full(N, S), k, rng)
+        assert tower_atoms(k) <= sm.symbolic_state(SPEC, config)
+    else:
+        config = base()
+    for believed in (np.full(N, 0.030), np.full(N, 0.060), BELIEVED):
+        pose = sm.action_pose(SPEC, believed, config, PUSH)
+        assert pose.shape == (5,) and np.all(np.isfinite(pose))
+        assert pose[2] == SPEC.push_tip_z and pose[3] == 0.0 and pose[4] == 0.0
+        if k:
+            chain = range(k)
+            rear = min(config.objects[j, 0] - sm._rear_half(believed[j], config.objects[j, 3:]) for j in chain)
+            assert pose[0] == pytest.approx(rear - SPEC.finger_half[0] - SPEC.push_gap)
+            assert pose[1] == pytest.approx(config.objects[0, 1])
+            # The stroke carries the tower's base to the goal centre.
+            end = sm.push_end_x(SPEC, config, PUSH, pose)
+            assert end - pose[0] == pytest.approx(SPEC.goal_centre_x - config.objects[0, 0])
+        else:
+            assert pose[0] < SPEC.start_x and pose[1] == 0.0
+        traj = domain.action_trajectory(config, PUSH, pose)
+        assert np.all(np.isfinite(traj)) and np.all(np.diff(traj[:, 0]) >= 0)
+        assert domain.transit_end_time(config, PUSH, pose) < traj[-1, 0]
+
+
+def test_tower_configuration_is_the_tower_it_says():
+    domain = load("stack_and_push")
+    rng = np.random.default_rng(3)
+    for k in range(1, N + 1):
+        config = tower_configuration(domain, np.full(N, S), k, rng)
+        assert sm.symbolic_state(SPEC, config) == atoms(k)
+        np.testing.assert_allclose(config.objects[:k, 2], (np.arange(k) + 0.5) * S)
+
+
+# -- physics: the probe's claims (true size 0.040 m, 16 trials, seed 0) -------------------------
+TRUE = 0.040
+TRIALS = 16
+SEED = 0
+
+
+@functools.cache
+def rate(action: str, load_k: int = 4, believed: float = TRUE) -> float:
+    """Success rate of `action` from sim_workers.probe.probe (cached: one run per input)."""
+    result = probe(action, TRUE, believed, load_k=load_k, trials=TRIALS, seed=SEED, domain="stack_and_push")
+    assert result.trials == TRIALS
+    return result.success_rate
+
+
+def tmoc() -> list[str]:
+    """The installed console script `tmoc`, as a user runs it."""
+    script = Path(sys.executable).with_name("tmoc")
+    return [str(script)] if script.exists() else [sys.executable, "-m", "coordinator.cli"]
+
+
+def cli_probe(cwd, action: str, load_k: int = 4, believed: float | None = None) -> dict:
+    """`tmoc probe --domain stack_and_push ... --json` in a subprocess; its JSON object."""
+    argv = tmoc() + ["probe", "--domain", "stack_and_push", "--action", action,
+                     "--true-size", str(TRUE), "--load", str(load_k), "--trials", str(TRIALS),
+                     "--seed", str(SEED), "--json"]
+    if believed is not None:
+        argv += ["--believed-size", str(believed)]
+    proc = subprocess.run(argv, cwd=cwd, capture_output=True, text=True, timeout=300, check=False,
+                          env={**os.environ, "RAY_USAGE_STATS_ENABLED": "0"})
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    lines = [ln for ln in proc.stdout.splitlines() if ln.startswith("{")]
+    assert len(lines) == 1, proc.stdout
+    return json.loads(lines[0])
+
+
+def test_push_of_two_succeeds_through_the_cli(neutral_cwd):
+    data = cli_probe(neutral_cwd, "push", load_k=2)
+    assert data["domain"] == "stack_and_push" and data["action"] == "push" and data["load"] == 2
+    assert data["trials"] == TRIALS and data["seed"] == SEED and data["true_size"] == TRUE
+    assert data["success_rate"] >= 0.85, data
+    # The console script and the library are the same seeded trials.
+    assert data["success_rate"] == rate("push", 2)
+
+
+def test_pickup_with_the_right_size_succeeds():
+    assert rate("pickup", believed=TRUE) >= 0.9
+
+
+def test_pickup_with_a_25_percent_wrong_belief_fails():
+    assert rate("pickup", believed=0.050) <= 0.5
+
+
+def test_stack_onto_a_tower_of_four_succeeds():
+    assert rate("stack", 4) >= 0.9
+
+
+def test_a_tall_tower_pushes_worse_than_a_short_one():
+    assert rate("push", 8) <= rate("push", 2) - 0.25
+
+
+def test_some_middle_height_is_graded():
+    rates = {k: rate("push", k) for k in range(3, 8)}
+    assert any(0.2 <= r <= 0.8 for r in rates.values()), rates
+
+
+def test_a_tower_of_eight_left_alone_stands():
+    assert rate("stand", 8) == 1.0
+
+
+def test_probe_accepts_every_load_t_star_asks_for():
+    """T* (tmoc experiment) probes a stack onto the empty start site (load 0); probe() once
+    refused every load outside 1..n, the container's range."""
+    domain = load("stack_and_push")
+    for action, k in domain.t_star_probe_jobs(N):
+        assert k in probe_loads(domain, action), (action, k)
+    assert list(probe_loads(domain, "stack")) == list(range(N))
+    assert rate("stack", 0) >= 0.9                      # one block onto the start site
+    with pytest.raises(ValueError, match=r"load: 8 is outside \[0, 7\]"):
+        probe("stack", TRUE, load_k=N, trials=1, domain="stack_and_push")
+    with pytest.raises(ValueError, match=r"load: 0 is outside \[1, 8\]"):
+        probe("push", TRUE, load_k=0, trials=1, domain="stack_and_push")
