@@ -2,6 +2,8 @@
 the service step by step; observations that do not fit get a 409 and change nothing."""
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pytest
 
@@ -140,3 +142,40 @@ def test_observations_that_do_not_fit_get_409_and_change_nothing(client, robot):
         body = {"observations": good, "episodes": _observation(outcome)}.get(path)
         r = client.request(method, f"/v1/sessions/s_nope/{path}", json=body)
         assert r.status_code == 404, (path, r.text)
+
+
+def test_a_stack_and_push_robot_session_and_task_over_http(client):
+    """The second domain end to end over HTTP: a robot session whose scene is a rail and a
+    tower (its atoms and actions are stack-and-push's), and a simulated task."""
+    world = SimulatedReality("stack_and_push", {"n_blocks": 8}, {"block_sizes": np.full(8, 0.040)})
+    try:
+        learning = {"domain": "stack_and_push", "agent": "tmoc", "particles": 8, "episodes": 1,
+                    "max_steps": 4, "seed": 2}
+        start = world.start_episode(np.random.default_rng(0))
+        r = client.post("/v1/sessions", json={**learning, "observation": _observation(start)})
+        assert r.status_code == 201, r.text
+        sid, step = r.json()["id"], r.json()["next"]
+        actions = []
+        while step is not None:
+            actions.append(step["action"])
+            outcome = world.execute(np.array(step["trajectory"]), step["action"])
+            body = client.post(f"/v1/sessions/{sid}/observations", json=_observation(outcome, step)).json()
+            step = body["next"]
+        assert len(actions) == 4 and actions[0] == "pickup(r,b1,init)"
+        assert all(re.fullmatch(r"pickup\(r,b\d,(init|table|rail)\)|stack\(r,b\d,tower\)", a)
+                   for a in actions), actions
+        state = body["report"]["state"]
+        assert "hand_empty(r)" in state or any(a.startswith("is_holding(r,") for a in state)
+        assert not any(a.startswith("at_container(") for a in state)
+        post = client.get(f"/v1/sessions/{sid}/belief").json()["posterior"]
+        assert post["size_std"] < 0.5 * PRIOR_STD, post      # the grasps taught it the size
+        # a container configuration is not this scene: 409 naming the objects
+        bad = {"configuration": {"robot": [0, 0, 0.2, 0, 0.05], "objects": [[0, 0, 0, 0, 0, 0, 1]] * 9}}
+        r = client.post("/v1/sessions", json={**learning, "observation": bad})
+        assert r.status_code == 409 and "configuration.objects" in r.json()["detail"]
+    finally:
+        world.close()
+    task = client.post("/v1/tasks", json={**learning, "true_size": 0.040}).json()["id"]
+    events = stream_events(client, task)
+    assert events[-1]["data"]["status"] == "succeeded", events[-1]
+    assert events[-2]["data"]["actions"] == 4
