@@ -332,7 +332,8 @@ def session_view(row: dict) -> dict:
 def _curve_points(records: list[dict]) -> list[dict]:
     return [{"episode": r["episode"], "utility": r["utility"],
              "size_mean": r["posterior"]["size_mean"], "size_std": r["posterior"]["size_std"],
-             "actions": r["actions"], "delivered": r["delivered"], "loads": r["loads"]}
+             "actions": r["actions"], "delivered": r["delivered"], "loads": r["loads"],
+             "properties": r["posterior"].get("properties")}
             for r in records]
 
 

@@ -31,6 +31,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from coordinator.agents import agent as agent_spec
+from coordinator.domains import measurement_channels
 from coordinator.reality import Observation
 from coordinator.run_config import RunConfig
 from sim_workers.configuration import Configuration
@@ -124,9 +125,14 @@ class PoolManager:
             pass
         self.ray_status = "stopped"
 
-    def acquire(self, domain: str, n_blocks: int):
-        """The shared pool of this scene (created if needed); pair with release()."""
-        key = (domain, int(n_blocks))
+    @staticmethod
+    def _key(domain: str, n_blocks: int, options: dict | None) -> tuple:
+        return (domain, int(n_blocks), tuple(sorted((options or {}).items())))
+
+    def acquire(self, domain: str, n_blocks: int, options: dict | None = None):
+        """The shared pool of this scene (created if needed; one per domain, block count
+        and domain options, since the options reach every world); pair with release()."""
+        key = self._key(domain, n_blocks, options)
         self.ensure_ray()
         with self._cond:
             while key not in self._pools and len(self._pools) >= self.max_pools:
@@ -141,7 +147,8 @@ class PoolManager:
             if fresh:
                 from coordinator.fanout import ShardPool
 
-                self._pools[key] = ShardPool(domain, {"n_blocks": int(n_blocks)}, self.n_shards,
+                self._pools[key] = ShardPool(domain, {"n_blocks": int(n_blocks), **(options or {})},
+                                             self.n_shards,
                                              num_cpus=1.0 / self.max_pools)
                 self._users[key] = 0
             self._users[key] += 1
@@ -153,15 +160,15 @@ class PoolManager:
             try:
                 added = pool.refresh()
             except Exception:
-                self.release(domain, n_blocks)
+                self.release(domain, n_blocks, options)
                 raise
             if added:
                 log.info("pool %s: %d shards added (cluster grew), %d in all", key, added,
                          len(pool.actors))
         return pool
 
-    def release(self, domain: str, n_blocks: int) -> None:
-        key = (domain, int(n_blocks))
+    def release(self, domain: str, n_blocks: int, options: dict | None = None) -> None:
+        key = self._key(domain, n_blocks, options)
         with self._cond:
             if key in self._users:
                 self._users[key] = max(0, self._users[key] - 1)
@@ -356,7 +363,7 @@ class TaskWorker:
         pool = None
         try:
             if learns:
-                pool = self.pools.acquire(config.domain, config.n_blocks)
+                pool = self.pools.acquire(config.domain, config.n_blocks, config.options)
             if should_stop():
                 result = None
             else:
@@ -372,7 +379,7 @@ class TaskWorker:
             return
         finally:
             if pool is not None:
-                self.pools.release(config.domain, config.n_blocks)
+                self.pools.release(config.domain, config.n_blocks, config.options)
         done = self.store.task_status(task_id)[1]
         if done >= config.episodes:
             summary = {"summary": result["summary"], "runtime": result["runtime"]} if result else None
@@ -483,14 +490,16 @@ class SessionManager:
             state = domain.symbolic_state(config)
         derived = domain.measurements(config)
         if body.get("measurements") is not None:
-            meas = np.array(body["measurements"], dtype=float)
+            # null: a channel the robot did not measure (e.g. the held weight after a stack)
+            meas = np.array([np.nan if v is None else v for v in body["measurements"]], dtype=float)
             if meas.shape != derived.shape:
+                names = ", ".join(c["name"] for c in measurement_channels(domain))
                 raise SessionConflict(f"measurements: {meas.size} values, expected {derived.size} "
-                                      "(finger opening, then x, y per block)", "measurements")
+                                      f"({names})", "measurements")
         else:
             meas = derived
         canonical = {"configuration": config.to_dict(), "state": sorted(state),
-                     "measurements": meas.tolist()}
+                     "measurements": [None if np.isnan(v) else float(v) for v in meas]}
         return Observation(config, frozenset(state), meas), canonical
 
     def _next(self, live: LiveSession) -> dict | None:
@@ -505,18 +514,18 @@ class SessionManager:
     @staticmethod
     def _from_canonical(d: dict) -> Observation:
         return Observation(Configuration.from_dict(d["configuration"]), frozenset(d["state"]),
-                           np.array(d["measurements"], dtype=float))
+                           np.array([np.nan if v is None else v for v in d["measurements"]], dtype=float))
 
     def _with_pool(self, live: LiveSession, fn):
         s = live.session
         if s.belief is None:
             return fn()
-        s.pool = self.pools.acquire(s.config.domain, s.n_blocks)
+        s.pool = self.pools.acquire(s.config.domain, s.n_blocks, s.config.options)
         try:
             return fn()
         finally:
             s.pool = None
-            self.pools.release(s.config.domain, s.n_blocks)
+            self.pools.release(s.config.domain, s.n_blocks, s.config.options)
 
     def _belief(self, live: LiveSession) -> dict | None:
         b = live.session.belief

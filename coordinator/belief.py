@@ -339,15 +339,19 @@ def gaussian_log_likelihood(
     return -0.5 * np.sum(z * z, axis=1) - float(np.sum(np.log(s))) - 0.5 * _LOG_2PI * o.shape[0]
 
 
-def mode_mask(particles: np.ndarray, weights: np.ndarray, bandwidth: float) -> np.ndarray:
+def mode_mask(particles: np.ndarray, weights: np.ndarray, bandwidth: float,
+              scale: np.ndarray | None = None) -> np.ndarray:
     """Particles in the heaviest mode: within `bandwidth` of the particle of highest
     weighted kernel density (Gaussian kernel of that bandwidth, Euclidean in L).
 
     The real pose is averaged over these only: the weighted mean of a bimodal belief's
     poses (say a grasp for a small block and one for a large block) is neither grasp.
-    For a unimodal belief narrower than the bandwidth it keeps every particle.
+    For a unimodal belief narrower than the bandwidth it keeps every particle. `scale`
+    (D,) divides each dimension first, so that properties in different units compare.
     """
     p = np.asarray(particles, dtype=np.float64).reshape(len(particles), -1)
+    if scale is not None:   # each dimension in its own units (e.g. m and kg/m^3)
+        p = p / np.asarray(scale, dtype=np.float64).reshape(1, -1)
     # Exact shortcut: when the particles' bounding box has a diagonal within 2 bandwidths,
     # every particle is within 2 bandwidths of any one, so of the densest: all are kept.
     # A converged belief (0.3 mm wide against a 3 mm bandwidth) never pays the N^2 below.

@@ -194,7 +194,15 @@ def check_measurements(d: Domain) -> str:
     """The measurement vector has a fixed length and the likelihood's channels index it."""
     config = d.physics.initial_configuration(_truth(d))
     m = d.physics.measurements(config)
-    assert m.ndim == 1 and np.all(np.isfinite(m)), "measurements not a finite vector"
+    # NaN is "not measured" (e.g. a held weight with nothing held); never an infinity.
+    assert m.ndim == 1 and not np.any(np.isinf(m)), "measurements not a vector of finite values or NaN"
+    idx0, _ = d.physics.measurement_model()
+    assert np.all(np.isfinite(m[np.asarray(idx0, dtype=int)][:1])), "the first weighed channel is not measured at rest"
+    from .domains import measurement_channels
+
+    chans = measurement_channels(d.physics)
+    if hasattr(d.physics, "measurement_channels"):
+        assert len(chans) == len(m), f"{len(chans)} channels described, {len(m)} measured"
     idx, sigma = d.physics.measurement_model()
     assert len(idx) == len(sigma), "channel indices and sigmas differ in length"
     assert np.all((np.asarray(idx) >= 0) & (np.asarray(idx) < len(m))), "a channel index is out of range"

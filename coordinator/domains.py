@@ -17,10 +17,13 @@ mapping ``{"physics": "pkg.physics:Cls", "task": "pkg.task:Cls", "description": 
 """
 from __future__ import annotations
 
+import dataclasses
+import math
 from dataclasses import dataclass
 from typing import Any
 
 from sim_workers import domains as physics_registry
+from sim_workers.properties import PropertySpace
 
 
 @dataclass(frozen=True)
@@ -121,17 +124,15 @@ def load(name: str, **options) -> Domain:
     return Domain(s, physics, task_half(name), dict(options))
 
 
-def describe(name: str) -> dict:
+def describe(name: str, **options) -> dict:
     """What `tmoc domains` and GET /v1/domains/{name} show: objects, L (names, units,
     prior), measurement channels, actions, T contexts and utility terms."""
-    d = load(name)
+    d = load(name, **options)
     phys, task = d.physics, d.task
     sp = phys.spec
-    names_, units, low, high, truth = _properties(phys)
-    idx, sigma = phys.measurement_model()
+    L = property_space(phys)
     n_meas = len(phys.measurements(phys.initial_configuration(phys.true_properties())))
-    channels = [{"name": "finger_opening" if i == 0 else f"channel_{i}", "index": int(i),
-                 "unit": "m", "sigma": float(sg)} for i, sg in zip(idx, sigma)]
+    channels = measurement_channels(phys)
     return {
         "name": d.name,
         "description": d.spec.description,
@@ -140,22 +141,89 @@ def describe(name: str) -> dict:
         "task": d.spec.task,
         "objects": list(phys.object_names),
         "n_blocks": int(sp.n_blocks),
-        "properties": [{"name": n, "unit": u, "prior": {"kind": "uniform", "low": lo, "high": hi},
-                        "default_truth": t}
-                       for n, u, lo, hi, t in zip(names_, units, low, high, truth)],
-        "measurements": {"count": n_meas, "weighed": channels},
+        "properties": [{"name": n, "unit": u, "prior": {"kind": "uniform", "low": float(lo), "high": float(hi)},
+                        "default_truth": float(t)}
+                       for n, u, lo, hi, t in zip(L.names, L.units, L.low, L.high, L.truth)],
+        "measurements": {"count": n_meas, "weighed": [c for c in channels if c["sigma"] is not None],
+                         "channels": channels},
         "actions": list(task.action_names),
         "contexts": [list(c) for c in task.contexts(int(sp.n_blocks))],
         "utility": dict(task.default_costs),
         "probe_actions": list(getattr(phys, "probe_actions", ())),
+        "options": options_of(phys),
     }
 
 
-def _properties(phys) -> tuple[list[str], list[str], list[float], list[float], list[float]]:
-    """L of a physics half: its own `L` description when it has one, else block sizes."""
+def property_space(phys) -> PropertySpace:
+    """L of a physics half: its own ``L`` when it has one, else the block size alone."""
     desc = getattr(phys, "L", None)
     if desc is not None:
-        return (list(desc.names), list(desc.units), [float(v) for v in desc.low],
-                [float(v) for v in desc.high], [float(v) for v in desc.truth])
+        return desc
     sp = phys.spec
-    return ["size"], ["m"], [float(sp.prior_low)], [float(sp.prior_high)], [float(sp.true_size)]
+    return PropertySpace(("size",), ("m",), (float(sp.prior_low),), (float(sp.prior_high),),
+                         (float(sp.true_size),))
+
+
+def measurement_channels(phys) -> list[dict]:
+    """Every measurement channel (name, index, unit, sigma; sigma None: not weighed)."""
+    own = getattr(phys, "measurement_channels", None)
+    if own is not None:
+        return [dict(c) for c in own()]
+    idx, sigma = phys.measurement_model()
+    return [{"name": "finger_opening" if i == 0 else f"channel_{i}", "index": int(i),
+             "unit": "m", "sigma": float(sg)} for i, sg in zip(idx, sigma)]
+
+
+_OPTION_TYPES = (bool, int, float, str, type(None))
+_NOT_OPTIONS = ("n_blocks", "true_size")
+
+
+def options_of(phys) -> dict:
+    """The options a physics half takes (its spec's scalar fields) with their defaults."""
+    spec = getattr(phys, "spec", None)
+    if spec is None or not dataclasses.is_dataclass(spec):
+        return {}
+    # The truth and the block count have their own settings (truth/true_size, n_blocks).
+    return {f.name: getattr(spec, f.name) for f in dataclasses.fields(spec)
+            if isinstance(getattr(spec, f.name), _OPTION_TYPES) and f.name not in _NOT_OPTIONS}
+
+
+def _option_value(key: str, value: Any, default: Any) -> Any:
+    """`value` as the type of the option's default (an integral float for an int option,
+    any number for a float or unset option); ValueError naming ``options.KEY`` otherwise."""
+    if isinstance(default, bool):
+        if isinstance(value, bool):
+            return value
+        raise ValueError(f"options.{key}: expected true or false, got {value!r}")
+    if isinstance(default, (int, float)) or default is None:
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise ValueError(f"options.{key}: expected a number, got {value!r}")
+        if not math.isfinite(value):
+            raise ValueError(f"options.{key}: not a finite number")
+        if isinstance(default, int):
+            if not float(value).is_integer():
+                raise ValueError(f"options.{key}: expected an integer, got {value!r}")
+            return int(value)
+        return float(value)
+    if isinstance(value, type(default)):
+        return value
+    raise ValueError(f"options.{key}: expected {type(default).__name__}, got {value!r}")
+
+
+def check_options(name: str, options: dict, n_blocks: int | None = None) -> dict:
+    """`options` for domain `name`, each one a scalar option the physics takes with a value
+    of its type; ValueError naming ``options.KEY`` otherwise."""
+    base = load(name).physics
+    known = options_of(base)
+    for key, value in list(options.items()):
+        if key in _NOT_OPTIONS:
+            raise ValueError(f"options.{key}: set {'n_blocks' if key == 'n_blocks' else 'truth.size (--true-size)'} instead")
+        if key not in known:
+            raise ValueError(f"options.{key}: not an option of domain {name!r} "
+                             f"(options: {', '.join(sorted(known))})")
+        options = {**options, key: _option_value(key, value, known[key])}
+    try:
+        load(name, **({"n_blocks": n_blocks} if n_blocks else {}), **options)
+    except (ValueError, TypeError) as exc:
+        raise ValueError(f"options.{exc}") from None
+    return dict(options)

@@ -389,7 +389,7 @@ def _run_remote():
         from .runner import run
 
         cfg = RunConfig(**config)
-        pool = (ShardPool(cfg.domain, {"n_blocks": cfg.n_blocks}, n_shards=0)
+        pool = (ShardPool(cfg.domain, {"n_blocks": cfg.n_blocks, **cfg.options}, n_shards=0)
                 if agent(cfg.agent).learn_belief else None)
         last = [time.monotonic()]
 

@@ -64,6 +64,44 @@ class RunConfig(BaseModel):
     sim_weight: float = Field(1.0, ge=0, le=100)
     costs: Costs = Costs()
     shards: int | None = Field(None, ge=0, le=4096)
+    # The hidden truth by the names of L (`tmoc domains`), e.g. {"size": 0.04, "density":
+    # 2400}; `true_size` is the same as truth["size"] (both may be given if they agree).
+    truth: dict[str, float] = Field(default_factory=dict)
+    # Domain options (scalar fields of the domain's physics spec), e.g.
+    # {"unknown_density": true, "force_sigma": 0.1}; they reach every world, real and particle.
+    options: dict[str, bool | int | float | str | None] = Field(default_factory=dict)
+
+    @model_validator(mode="after")
+    def _truth_and_options_are_the_domains(self) -> "RunConfig":
+        from coordinator.domains import check_options, load, property_space
+
+        self.options = check_options(self.domain, dict(self.options), self.n_blocks)
+        if "size" in self.truth:
+            size = self.truth["size"]
+            if "true_size" in self.model_fields_set and size != self.true_size:
+                raise ValueError(f"truth.size: {size} disagrees with true_size {self.true_size}")
+            if not 0.02 <= size <= 0.08:
+                raise ValueError(f"truth.size: {size} m is outside [0.02, 0.08] m")
+            self.true_size = float(size)
+        phys = load(self.domain, n_blocks=self.n_blocks, **self.options).physics
+        L = property_space(phys)
+        for name in self.truth:
+            if name not in L.names:
+                raise ValueError(f"truth.{name}: not a property of L for domain {self.domain!r} "
+                                 f"with these options (properties: {', '.join(L.names)})")
+        if len(L.names) > 1 and hasattr(phys, "props_from_row"):
+            # The truth must be a world the physics can build (e.g. a density > 0).
+            from sim_workers.properties import PropertyError
+
+            try:
+                phys.properties(phys.props_from_row(L.truth_row(self.truth_values(), self.n_blocks, False)))
+            except PropertyError as exc:
+                raise ValueError(f"truth.{exc}") from None
+        return self
+
+    def truth_values(self) -> dict[str, float]:
+        """The hidden truth by name (size from `true_size`; the rest as given)."""
+        return {**self.truth, "size": float(self.true_size)}
 
     @model_validator(mode="after")
     def _costs_are_the_domains(self) -> "RunConfig":

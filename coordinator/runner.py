@@ -15,9 +15,18 @@ from .session import Session
 
 
 def reality_for(config: RunConfig, session: Session) -> SimulatedReality:
-    truth = session.domain.true_properties(config.sizes_variation)
-    truth["block_sizes"] = truth["block_sizes"] * (config.true_size / session.domain.spec.true_size)
-    return SimulatedReality(config.domain, {"n_blocks": config.n_blocks}, truth)
+    """The simulated real world holding the hidden truth, with the run's domain options."""
+    if len(session.L.names) > 1:     # the truth is a row of L, built like a particle's
+        truth = session.domain.props_from_row(session.truth_row())
+    else:
+        truth = session.domain.true_properties(config.sizes_variation)
+        truth["block_sizes"] = truth["block_sizes"] * (config.true_size / session.domain.spec.true_size)
+    return SimulatedReality(config.domain, domain_options(config), truth)
+
+
+def domain_options(config: RunConfig) -> dict:
+    """What every world of a run is built with: n_blocks and the run's domain options."""
+    return {"n_blocks": config.n_blocks, **config.options}
 
 
 class NodeTally:
@@ -87,7 +96,7 @@ def run(config: RunConfig, *, ray_address: str | None = None,
     if session.agent.learn_belief:
         if pool is None:
             init_ray(ray_address)
-            pool = ShardPool(config.domain, {"n_blocks": config.n_blocks}, config.shards)
+            pool = ShardPool(config.domain, domain_options(config), config.shards)
         session.pool = _Tallied(pool, tally)
     else:
         pool, own_pool = None, False
@@ -134,6 +143,8 @@ def result_record(config: RunConfig, session: Session, nodes: list[dict], wall_s
             "final_size_mean": post["size_mean"],
             "final_size_std": post["size_std"],
             "true_size": config.true_size,
+            "truth": config.truth_values(),
+            "posterior": post["properties"],
             "transition": T.to_planner(),
         },
         "runtime": {
@@ -160,7 +171,8 @@ def write_result(result: dict, out_dir: Path) -> tuple[Path, Path]:
 
 
 def plot_curve(result: dict, path: Path) -> None:
-    """Utility per episode, and the posterior block size with its spread."""
+    """Utility per episode, then one panel per property of L: its posterior mean, its
+    spread and the truth (size in mm; other properties in their own units)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -168,15 +180,28 @@ def plot_curve(result: dict, path: Path) -> None:
 
     eps = result["episodes"]
     x = [e["episode"] for e in eps]
-    fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(10, 3.8))
+    names = list(eps[-1]["posterior"].get("properties", {"size": {}})) if eps else ["size"]
+    truth = (result.get("summary") or {}).get("truth") or {
+        **(result["config"].get("truth") or {}), "size": result["config"]["true_size"]}
+    fig, axes = plt.subplots(1, 1 + len(names), figsize=(5 * (1 + len(names)), 3.8))
+    ax1 = axes[0]
     ax1.plot(x, [e["utility"] for e in eps], marker="o")
     ax1.set_xlabel("episode"); ax1.set_ylabel("utility"); ax1.set_title(f"{result['config']['agent']}: utility")
-    m = np.array([e["posterior"]["size_mean"] for e in eps]) * 1000
-    s = np.array([e["posterior"]["size_std"] for e in eps]) * 1000
-    ax2.plot(x, m, marker="o", label="posterior mean")
-    ax2.fill_between(x, m - s, m + s, alpha=0.3, label="±1 std")
-    ax2.axhline(result["config"]["true_size"] * 1000, color="k", ls="--", label="true size")
-    ax2.set_xlabel("episode"); ax2.set_ylabel("block size (mm)"); ax2.set_title("belief over L"); ax2.legend()
+    for ax, name in zip(axes[1:], names):
+        if name == "size":
+            scale, label = 1000.0, "block size (mm)"
+            m = np.array([e["posterior"]["size_mean"] for e in eps]) * scale
+            s = np.array([e["posterior"]["size_std"] for e in eps]) * scale
+        else:
+            props = [e["posterior"]["properties"][name] for e in eps]
+            scale, label = 1.0, f"{name} ({props[0]['unit']})"
+            m = np.array([p["mean"] for p in props])
+            s = np.array([p["std"] for p in props])
+        ax.plot(x, m, marker="o", label="posterior mean")
+        ax.fill_between(x, m - s, m + s, alpha=0.3, label="±1 std")
+        if name in truth:
+            ax.axhline(truth[name] * scale, color="k", ls="--", label=f"true {name}")
+        ax.set_xlabel("episode"); ax.set_ylabel(label); ax.set_title(f"belief over L: {name}"); ax.legend()
     fig.tight_layout()
     fig.savefig(path, dpi=90)
     plt.close(fig)

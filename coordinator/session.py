@@ -19,7 +19,7 @@ from sim_workers.configuration import Configuration
 
 from .agents import agent as agent_spec
 from .belief import Belief, gaussian_log_likelihood, mode_mask, symbolic_log_likelihood
-from .domains import load as load_domain
+from .domains import load as load_domain, property_space
 from .experience import ExperiencePool
 from .reality import Observation
 from .run_config import RunConfig
@@ -63,7 +63,7 @@ class Session:
     def __init__(self, config: RunConfig, pool=None) -> None:
         self.config = config
         self.agent = agent_spec(config.agent)
-        joined = load_domain(config.domain, n_blocks=config.n_blocks)
+        joined = load_domain(config.domain, n_blocks=config.n_blocks, **config.options)
         self.domain = joined.physics          # scene, Y, Y^-1, measurements
         self.task = joined.task               # symbolic model, T's contexts, utility, planner
         self.n_blocks = config.n_blocks
@@ -71,10 +71,12 @@ class Session:
         self.pool = pool
         seq = np.random.SeedSequence(config.seed)
         self.rng = np.random.default_rng(seq.spawn(1)[0])
-        spec = self.domain.spec
-        self.dims = self.n_blocks if config.sizes_variation else 1
-        self.low = np.full(self.dims, spec.prior_low)
-        self.high = np.full(self.dims, spec.prior_high)
+        # L: named properties, one value each for every block, or one per block with
+        # the "sizes" variation; a row is property-major (sizes, then densities, ...).
+        self.L = property_space(self.domain)
+        self.per_block = bool(config.sizes_variation)
+        self.dims = self.L.dims(self.n_blocks, self.per_block)
+        self.low, self.high = self.L.bounds(self.n_blocks, self.per_block)
         self.belief = (Belief.from_prior(config.particles, self.low, self.high, self.rng)
                        if self.agent.learn_belief else None)
         if self.belief is not None and config.known_properties:
@@ -95,9 +97,7 @@ class Session:
     def _point_belief(self, config: RunConfig) -> Belief:
         """Every particle at the true properties (L given, as in the paper's real-robot
         run): reweighting cannot move it, resampling finds nothing to resample."""
-        truth = np.full(self.dims, config.true_size)
-        if config.sizes_variation:
-            truth[0] *= 1.2
+        truth = self.truth_row()
         n = config.particles
         return Belief(np.tile(truth, (n, 1)), np.full(n, -np.log(n)), self.low, self.high)
 
@@ -108,20 +108,30 @@ class Session:
             sim_weight=self.config.sim_weight if self.agent.sim_experience else 0.0,
             contexts=self.task.contexts(self.n_blocks), context_fn=self.task.context_of)
 
+    def truth_row(self) -> np.ndarray:
+        """The hidden truth as a row of L (the "sizes" variation: block 1 is 20 % larger)."""
+        return self.L.truth_row(self.config.truth_values(), self.n_blocks, self.per_block, {"size": 1.2})
+
     # -- particles -----------------------------------------------------------------------
     def particle_sizes(self) -> np.ndarray:
         """(N, n_blocks) block sizes of every particle."""
-        return np.broadcast_to(self.belief.particles, (len(self.belief.particles), self.n_blocks)) \
-            if self.dims == 1 else self.belief.particles
+        return np.array([self._props(row)["block_sizes"] for row in self.belief.particles])
 
-    def _props(self, sizes: np.ndarray) -> dict:
-        return {"block_sizes": np.broadcast_to(sizes, (self.n_blocks,))}
+    def _props(self, row: np.ndarray) -> dict:
+        """A row of L (or, for a size-only L, n_blocks sizes) as the domain's properties."""
+        row = np.asarray(row, dtype=np.float64)
+        if len(self.L.names) == 1:
+            return {"block_sizes": np.broadcast_to(row, (self.n_blocks,))}
+        return self.domain.props_from_row(row)
+
+    def believed_row(self) -> np.ndarray:
+        """The belief's weighted mean row of L (the prior's mean without a belief)."""
+        if self.belief is None:
+            return (self.low + self.high) / 2
+        return np.asarray(self.belief.weighted_mean(self.belief.particles, angular=()), dtype=np.float64)
 
     def believed_sizes(self) -> np.ndarray:
-        if self.belief is None:
-            return np.full(self.n_blocks, (self.domain.spec.prior_low + self.domain.spec.prior_high) / 2)
-        return np.broadcast_to(self.belief.weighted_mean(self.belief.particles, angular=()),
-                               (self.n_blocks,)).copy()
+        return np.array(self._props(self.believed_row())["block_sizes"], dtype=np.float64)
 
     # -- episode -------------------------------------------------------------------------
     def start_episode(self, observation: Observation) -> None:
@@ -158,22 +168,34 @@ class Session:
             poses = self._particle_poses(config, action)
             if self.config.pose_rule == "mean":         # the paper: weighted mean of all x_i
                 return self.belief.weighted_mean(poses, angular=(3,)), poses
-            keep = mode_mask(self.belief.particles, self.belief.weights, self.config.mode_bandwidth)
+            keep = mode_mask(self.belief.particles, self.belief.weights, self.config.mode_bandwidth,
+                             scale=self._mode_scale())
             sub = Belief(self.belief.particles[keep], self.belief.log_weights[keep],
                          self.belief.low, self.belief.high)
             return sub.weighted_mean(poses[keep], angular=(3,)), poses
         if mode == "random":
-            s = self.rng.uniform(spec.prior_low, spec.prior_high, self.n_blocks)
+            if len(self.L.names) == 1:
+                s = self.rng.uniform(spec.prior_low, spec.prior_high, self.n_blocks)
+            else:   # every property of every block drawn from its prior
+                low, high = self.L.bounds(self.n_blocks, True)
+                s = self.rng.uniform(low, high)
             return self.domain.action_pose(self._props(s), config, action), None
-        return self.domain.action_pose(self._props(self.believed_sizes()), config, action), None
+        return self.domain.action_pose(self._props(self.believed_row()), config, action), None
+
+    def _mode_scale(self) -> np.ndarray:
+        """Per-dimension scale for the pose mode: each property's prior width over the
+        size's, so the bandwidth stays in metres of size and a kg/m^3 counts as its share
+        of the density prior (a metre and a kg/m^3 are not one Euclidean space)."""
+        width = self.high - self.low
+        return width / width[0]
 
     def _particle_poses(self, config: Configuration, action: str) -> np.ndarray:
         """Y_i for every particle: one vectorised call when the domain has one."""
         many = getattr(self.domain, "action_poses", None)
         if many is not None:
             return many(self.belief.particles, config, action)
-        return np.array([self.domain.action_pose(self._props(s), config, action)
-                         for s in self.particle_sizes()])
+        return np.array([self.domain.action_pose(self._props(row), config, action)
+                         for row in self.belief.particles])
 
     def _transit(self, config: Configuration, pre: np.ndarray) -> np.ndarray | None:
         """A collision-free path to the pre-pose among the observed obstacles.
@@ -310,12 +332,21 @@ class Session:
         s.utility += reward
 
     def posterior(self) -> dict:
+        """size_mean/size_std (over the size dimensions), the raw per-dimension mean and
+        std, and ``properties``: {name: {mean, std, unit}} for every property of L."""
+        k = self.n_blocks if self.per_block else 1
         if self.belief is None:
-            m = float(self.believed_sizes()[0])
-            return {"size_mean": m, "size_std": 0.0}
-        summ = self.belief.summary()
-        return {"size_mean": float(np.mean(summ["mean"])), "size_std": float(np.mean(summ["std"])),
-                "mean": [float(v) for v in summ["mean"]], "std": [float(v) for v in summ["std"]]}
+            mean, std = self.believed_row(), np.zeros(self.dims)
+        else:
+            mean, std = self.belief.mean(), self.belief.std()
+        props = {name: {"mean": float(np.mean(mean[j * k:(j + 1) * k])),
+                        "std": float(np.mean(std[j * k:(j + 1) * k])), "unit": unit}
+                 for j, (name, unit) in enumerate(zip(self.L.names, self.L.units))}
+        out = {"size_mean": props["size"]["mean"], "size_std": props["size"]["std"]}
+        if self.belief is not None:
+            out.update(mean=[float(v) for v in mean], std=[float(v) for v in std])
+        out["properties"] = props
+        return out
 
     def _finish_episode(self) -> dict:
         s = self.stats

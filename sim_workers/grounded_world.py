@@ -26,6 +26,22 @@ REST_CHECK_EVERY = 12   # steps
 
 
 @dataclass(frozen=True)
+class SensorLog:
+    """What a real robot's sensors report while it executes an action: the wrist
+    force (N, world frame: the reaction of the constraint that carries the gripper, so
+    gripper plus held load) at every physics step, and the finger opening (m)."""
+
+    times: np.ndarray          # (S,) s, on the trajectory's clock
+    wrist_force: np.ndarray    # (S, 3)
+    opening: np.ndarray        # (S,)
+    t_end: float               # when the trajectory ended (the rest is settling)
+
+    def window(self, t0: float, t1: float) -> np.ndarray:
+        """Boolean mask of the steps with t0 < t <= t1."""
+        return (self.times > t0) & (self.times <= t1)
+
+
+@dataclass(frozen=True)
 class Outcome:
     """What one action did in one world."""
 
@@ -162,10 +178,16 @@ class GroundedWorld:
         times = start_time + dt * np.arange(1, int(np.ceil((t_end - start_time + settle) / dt)) + 1)
         targets = tr.sample(traj, times)
         steps = 0
+        # A domain that reads sensors during the action says so; the others pay nothing.
+        logging = bool(getattr(self.domain, "logs_sensors", False))
+        force, opening = [], []
         for k, (t, target) in enumerate(zip(times, targets)):
             self._set_gripper(target)
             pb.stepSimulation(physicsClientId=self.client)
             steps += 1
+            if logging:
+                force.append(pb.getConstraintState(h.base_constraint, physicsClientId=self.client)[:3])
+                opening.append(self._opening())
             if t > t_end and k % REST_CHECK_EVERY == 0 and self.at_rest():
                 break
         config = self.observe()
@@ -173,5 +195,15 @@ class GroundedWorld:
         if after is not config:
             self._apply(after)
             config = after
-        return Outcome(config, self.domain.symbolic_state(config),
-                       self.domain.measurements(config), steps)
+        if logging:
+            log = SensorLog(times[:steps].copy(), np.array(force, dtype=np.float64).reshape(-1, 3),
+                            np.array(opening, dtype=np.float64), t_end)
+            meas = self.domain.measurements(config, log, action)
+        else:
+            meas = self.domain.measurements(config)
+        return Outcome(config, self.domain.symbolic_state(config), meas, steps)
+
+    def _opening(self) -> float:
+        h = self.handles
+        q = [s[0] for s in pb.getJointStates(h.gripper, list(h.fingers), physicsClientId=self.client)]
+        return 2.0 * (float(np.mean(q)) - h.finger_inner)

@@ -1,6 +1,7 @@
 """Validation of the objects' continuous properties L (the particle filter's hypotheses)."""
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Mapping
 
 import numpy as np
@@ -43,8 +44,78 @@ def validate_positive(value, field: str, low: float = 0.0, high: float = np.inf)
     except (TypeError, ValueError):
         raise PropertyError(f"{field}: {value!r} is not a number") from None
     if not np.isfinite(x) or not (low < x <= high):
-        raise PropertyError(f"{field}: {value!r} is outside ({low}, {high}]")
+        raise PropertyError(f"{field}: {x!r} is outside ({low}, {high}]")
     return x
+
+
+MIN_DENSITY = 1.0          # kg/m^3: below, not a solid block
+MAX_DENSITY = 25000.0      # above osmium
+
+
+def validate_density(value, n_blocks: int) -> float | np.ndarray:
+    """One density for every block (a float) or one per block ((n,) array), kg/m^3."""
+    arr = np.asarray(value, dtype=np.float64) if not isinstance(value, str) else None
+    if arr is None or arr.ndim == 0:
+        return validate_positive(value, "density", MIN_DENSITY, MAX_DENSITY)
+    if arr.shape != (n_blocks,):
+        raise PropertyError(f"density: expected one value or {n_blocks}, got shape {arr.shape}")
+    for i, v in enumerate(arr):
+        validate_positive(v, f"density[{i}]", MIN_DENSITY, MAX_DENSITY)
+    return arr.copy()
+
+
+@dataclass(frozen=True)
+class PropertySpace:
+    """L as data: the names, units, uniform prior and default truth of each unknown
+    property. A row of L is property-major: one value per property (every block alike) or
+    one per block per property (``per_block``): sizes of b1..bn, then densities of b1..bn."""
+
+    names: tuple[str, ...]
+    units: tuple[str, ...]
+    low: tuple[float, ...]
+    high: tuple[float, ...]
+    truth: tuple[float, ...]
+
+    def dims(self, n_blocks: int, per_block: bool) -> int:
+        return len(self.names) * (n_blocks if per_block else 1)
+
+    def bounds(self, n_blocks: int, per_block: bool) -> tuple[np.ndarray, np.ndarray]:
+        """(low, high) of a row."""
+        k = n_blocks if per_block else 1
+        return np.repeat(self.low, k).astype(np.float64), np.repeat(self.high, k).astype(np.float64)
+
+    def split(self, row, n_blocks: int) -> dict[str, np.ndarray]:
+        """A row as {name: (n_blocks,) values}; PropertyError unless its length is one
+        value per property or one per block per property."""
+        row = np.asarray(row, dtype=np.float64).reshape(-1)
+        p = len(self.names)
+        if row.size == p:
+            return {name: np.full(n_blocks, row[j]) for j, name in enumerate(self.names)}
+        if row.size == p * n_blocks:
+            return {name: row[j * n_blocks:(j + 1) * n_blocks].copy() for j, name in enumerate(self.names)}
+        raise PropertyError(f"L: a row of {row.size} values; expected {p} ({', '.join(self.names)}) "
+                            f"or {p * n_blocks} (one per block per property)")
+
+    def truth_row(self, truth: Mapping[str, float], n_blocks: int, per_block: bool,
+                  first_block_scale: Mapping[str, float] | None = None) -> np.ndarray:
+        """The hidden truth as a row: `truth` by name over the defaults (a name L does not
+        have raises PropertyError naming it); with `per_block`, block 1 of each property is
+        scaled by `first_block_scale` (the "sizes" variation)."""
+        unknown = sorted(set(truth) - set(self.names))
+        if unknown:
+            raise PropertyError(f"truth.{unknown[0]}: not a property of L "
+                                f"(properties: {', '.join(self.names)})")
+        values = [float(truth.get(n, t)) for n, t in zip(self.names, self.truth)]
+        for name, v, lo, hi in zip(self.names, values, self.low, self.high):
+            validate_positive(v, f"truth.{name}", 0.0, np.inf)
+        if not per_block:
+            return np.array(values)
+        cols = []
+        for name, v in zip(self.names, values):
+            block = np.full(n_blocks, v)
+            block[0] *= (first_block_scale or {}).get(name, 1.0)
+            cols.append(block)
+        return np.concatenate(cols)
 
 
 # The names a caller may pass for blocks. `block_masses` is derived (density x size^3) and
@@ -65,7 +136,7 @@ def block_properties(props: Mapping, n_blocks: int, default_density: float) -> d
     if unknown:
         raise PropertyError(f"{unknown[0]}: unknown property (known: block_sizes, density)")
     sizes = validate_sizes(props["block_sizes"], n_blocks)
-    density = validate_positive(props.get("density", default_density), "density", 1.0, 25000.0)
+    density = validate_density(props.get("density", default_density), n_blocks)
     masses = density * sizes ** 3
     if "block_masses" in props:
         try:

@@ -16,7 +16,8 @@ from ..run_config import RunConfig
 _FLAG_FIELDS = {"domain": "--domain", "agent": "--agent", "particles": "--particles",
                 "episodes": "--episodes", "seed": "--seed", "true_size": "--true-size",
                 "sizes_variation": "--sizes-variation", "likelihood": "--likelihood",
-                "max_steps": "--max-steps", "shards": "--shards"}
+                "max_steps": "--max-steps", "shards": "--shards", "truth": "--truth",
+                "options": "--option"}
 
 
 def register(sub) -> None:
@@ -37,6 +38,10 @@ def register(sub) -> None:
     p.add_argument("--episodes", type=int, default=None, help=f"(default {d.episodes})")
     p.add_argument("--seed", type=int, default=None, help=f"(default {d.seed})")
     p.add_argument("--true-size", type=float, default=None, help=f"hidden block size, m (default {d.true_size})")
+    p.add_argument("--truth", action="append", default=None, metavar="NAME=VALUE[,NAME=VALUE]",
+                   help="the hidden truth by the names of L (tmoc domains), e.g. size=0.04,density=2400")
+    p.add_argument("--option", action="append", default=None, metavar="KEY=VALUE", dest="options",
+                   help="a domain option (repeatable), e.g. unknown_density=true or force_sigma=0.1")
     p.add_argument("--sizes-variation", action="store_true", default=None, help="one block 20%% larger")
     p.add_argument("--likelihood", default=None, help=f"replay | paper (default {d.likelihood})")
     p.add_argument("--max-steps", type=int, default=None, help=f"(default {d.max_steps})")
@@ -68,14 +73,57 @@ def _config_file(path: str) -> dict:
     return data
 
 
+def parse_truth(items: list[str] | None) -> dict[str, float]:
+    """``["size=0.04,density=2400", ...]`` -> {"size": 0.04, "density": 2400.0}."""
+    out: dict[str, float] = {}
+    for item in items or []:
+        for pair in filter(None, item.split(",")):
+            name, sep, value = pair.partition("=")
+            if not sep or not name.strip():
+                raise UsageError(f"--truth {pair}: expected NAME=VALUE")
+            try:
+                out[name.strip()] = float(value)
+            except ValueError:
+                raise UsageError(f"--truth {pair}: {value!r} is not a number") from None
+    return out
+
+
+def parse_options(items: list[str] | None) -> dict:
+    """``["unknown_density=true", "force_sigma=0.1"]`` -> {"unknown_density": True,
+    "force_sigma": 0.1}: a value is read as JSON (true, 3, 0.1, null), else kept as text."""
+    out: dict = {}
+    for item in items or []:
+        key, sep, value = item.partition("=")
+        if not sep or not key.strip():
+            raise UsageError(f"--option {item}: expected KEY=VALUE")
+        try:
+            parsed = json.loads(value)
+        except ValueError:
+            parsed = value
+        if isinstance(parsed, (list, dict)):
+            raise UsageError(f"--option {item}: expected a single value")
+        out[key.strip()] = parsed
+    return out
+
+
 def _config(args) -> RunConfig:
     from_file = _config_file(args.config) if args.config else {}
     from_flags = {f: getattr(args, f) for f in _FLAG_FIELDS if getattr(args, f, None) is not None}
+    if "truth" in from_flags:
+        from_flags["truth"] = {**from_file.get("truth", {}), **parse_truth(from_flags["truth"])}
+    if "options" in from_flags:
+        from_flags["options"] = {**from_file.get("options", {}), **parse_options(from_flags["options"])}
     try:
         return RunConfig(**{**from_file, **from_flags})
     except ValidationError as exc:
         err = exc.errors()[0]
         loc = [str(x) for x in err["loc"]]
+        msg = err["msg"].removeprefix("Value error, ")
+        for field, flag in (("truth", "--truth"), ("options", "--option")):
+            if not loc and msg.startswith(f"{field}.") and field in from_flags:
+                raise UsageError(f"{flag}: {msg}") from None
+        if not loc and msg.startswith(("truth", "options")):
+            raise UsageError(f"{'--config ' + args.config + ': ' if args.config else ''}{msg}") from None
         if loc and loc[0] in from_flags:
             where = _FLAG_FIELDS[loc[0]]
         elif args.config:

@@ -92,6 +92,11 @@ def build_blocks(client: int, spec: ContainerSpec, sizes: np.ndarray, masses: np
     return tuple(bodies)
 
 
+PALM_MASS = 0.5      # kg
+FINGER_MASS = 0.05   # kg each
+GRIPPER_MASS = PALM_MASS + 2 * FINGER_MASS   # what a wrist sensor reads with an empty hand
+
+
 def build_gripper(client: int, spec: ContainerSpec) -> tuple[int, tuple[int, int], int]:
     """A palm carried by a fixed constraint and two prismatic fingers closing along local y."""
     px, py, pz = spec.palm_half
@@ -100,8 +105,8 @@ def build_gripper(client: int, spec: ContainerSpec) -> tuple[int, tuple[int, int
     finger = _box(client, spec.finger_half)
     z0 = spec.carry_height + spec.palm_offset
     body = pb.createMultiBody(
-        baseMass=0.5, baseCollisionShapeIndex=palm, basePosition=[0, 0, z0],
-        linkMasses=[0.05, 0.05], linkCollisionShapeIndices=[finger, finger],
+        baseMass=PALM_MASS, baseCollisionShapeIndex=palm, basePosition=[0, 0, z0],
+        linkMasses=[FINGER_MASS, FINGER_MASS], linkCollisionShapeIndices=[finger, finger],
         linkVisualShapeIndices=[-1, -1],
         linkPositions=[[0, 0, -(pz + fz)], [0, 0, -(pz + fz)]],
         linkOrientations=[[0, 0, 0, 1]] * 2,

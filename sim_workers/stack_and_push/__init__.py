@@ -9,7 +9,8 @@ import numpy as np
 
 from .. import domains
 from ..configuration import Configuration
-from ..properties import PropertyError, block_properties
+from ..container.scene import GRIPPER_MASS
+from ..properties import PropertyError, PropertySpace, block_properties
 from . import probes, scene, state_mapping, trajectories
 from .spec import StackAndPushSpec
 
@@ -30,6 +31,14 @@ class StackAndPushDomain:
             spec = dataclasses.replace(spec, **overrides)
         if not 1 <= spec.n_blocks <= MAX_BLOCKS:
             raise ValueError(f"n_blocks: {spec.n_blocks} is outside [1, {MAX_BLOCKS}]")
+        if spec.force_sigma is not None and not spec.force_sigma > 0:
+            raise ValueError(f"force_sigma: {spec.force_sigma} N must be positive")
+        if not 0 < spec.density_low < spec.density_high:
+            raise ValueError(f"density_low/density_high: need 0 < {spec.density_low} < {spec.density_high}")
+        if not 0 < spec.prior_low < spec.prior_high:
+            raise ValueError(f"prior_low/prior_high: need 0 < {spec.prior_low} < {spec.prior_high}")
+        if not spec.weigh_s > 0:
+            raise ValueError(f"weigh_s: {spec.weigh_s} s must be positive")
         self.spec = spec
 
     # -- data -----------------------------------------------------------------------
@@ -49,12 +58,21 @@ class StackAndPushDomain:
 
         return Bounds(np.array([-0.5, -0.6, 0.0, -np.pi]), np.array([1.2, 0.6, 0.75, np.pi]))
 
+    @property
+    def L(self) -> PropertySpace:
+        """The unknown properties: the block size, and with ``unknown_density`` the density."""
+        sp = self.spec
+        if sp.unknown_density:
+            return PropertySpace(("size", "density"), ("m", "kg/m^3"), (sp.prior_low, sp.density_low),
+                                 (sp.prior_high, sp.density_high), (sp.true_size, sp.density))
+        return PropertySpace(("size",), ("m",), (sp.prior_low,), (sp.prior_high,), (sp.true_size,))
+
     def true_properties(self, sizes_variation: bool = False) -> dict:
         """The hidden truth: all blocks `true_size`, or (variation "sizes") one 20 % larger."""
         sizes = np.full(self.spec.n_blocks, self.spec.true_size)
         if sizes_variation:
             sizes[0] *= 1.2
-        return {"block_sizes": sizes}
+        return {"block_sizes": sizes, "density": self.spec.density}
 
     def properties(self, props: dict) -> dict:
         """Validated properties: block_sizes (n,), density, block_masses (n,); idempotent."""
@@ -63,8 +81,14 @@ class StackAndPushDomain:
         return block_properties(props, self.spec.n_blocks, self.spec.density)
 
     def props_from_row(self, row: np.ndarray) -> dict:
-        """A row of L (one size for every block, or one per block) as properties."""
-        return {"block_sizes": np.broadcast_to(np.asarray(row, dtype=np.float64), (self.spec.n_blocks,))}
+        """A row of L as properties: (size) or (size, density), for every block alike, or
+        one per block per property (property-major)."""
+        values = self.L.split(row, self.spec.n_blocks)
+        props = {"block_sizes": values["size"]}
+        if "density" in values:
+            d = values["density"]
+            props["density"] = float(d[0]) if np.all(d == d[0]) else d
+        return props
 
     # -- physics ---------------------------------------------------------------------
     def build(self, client: int, props: dict) -> scene.SceneHandles:
@@ -140,15 +164,46 @@ class StackAndPushDomain:
         holding = any(a.startswith("is_holding") for a in self.symbolic_state(config))
         return trajectories.pre_pose(self.spec, action, key, holding)
 
-    def measurements(self, config: Configuration) -> np.ndarray:
-        """The finger opening, then planar block positions (x, y per block); no heights
-        (a depth reading of a block would give its size away)."""
-        return np.concatenate([[config.robot[4]], config.objects[:, :2].ravel()])
+    @property
+    def logs_sensors(self) -> bool:
+        """Whether worlds log the sensors during an action (and pass the log to
+        `measurements`): only when the held weight is weighed. Logging costs 6-8 % of a
+        physics step (measured), which a run with the density known need not pay; its
+        held-weight channel then reads NaN (not measured)."""
+        return self.force_sigma is not None
+
+    def measurements(self, config: Configuration, log=None, action: str = "") -> np.ndarray:
+        """The finger opening, planar block positions (x, y per block; no heights: a depth
+        reading of a block would give its size away), then the held weight (N): the mean
+        vertical wrist force over the lift's last ``weigh_s`` of a pickup, less the empty
+        gripper's weight (NaN after any other action, or without a sensor log)."""
+        return np.concatenate([[config.robot[4]], config.objects[:, :2].ravel(),
+                               [held_weight(self.spec, log, action)]])
+
+    def measurement_channels(self) -> list[dict]:
+        """Every channel: name, index, unit and sigma (None: reported, not weighed)."""
+        n = self.spec.n_blocks
+        return ([{"name": "finger_opening", "index": 0, "unit": "m", "sigma": 0.002}]
+                + [{"name": f"{b}_{ax}", "index": 1 + 2 * i + k, "unit": "m", "sigma": None}
+                   for i, b in enumerate(self.block_names) for k, ax in enumerate("xy")]
+                + [{"name": "held_weight", "index": 1 + 2 * n, "unit": "N", "sigma": self.force_sigma}])
+
+    @property
+    def force_sigma(self) -> float | None:
+        """The held-weight channel's noise: as set, else 0.1 N when the density is unknown
+        (weighed), else None (reported only: a known density leaves it nothing to learn
+        that the finger opening does not already say)."""
+        sp = self.spec
+        if sp.force_sigma is not None:
+            return float(sp.force_sigma)
+        return 0.1 if sp.unknown_density else None
 
     def measurement_model(self) -> tuple[np.ndarray, np.ndarray]:
-        """(indices, std) of the likelihood's channels: the finger opening only (2 mm);
-        landing positions after a topple are chaotic (the container's finding)."""
-        return np.array([0]), np.array([0.002])
+        """(indices, std) of the weighed channels: the finger opening (2 mm) and, when it
+        has a sigma, the held weight; landing positions after a topple are chaotic (the
+        container's finding) and are not weighed."""
+        chans = [c for c in self.measurement_channels() if c["sigma"] is not None]
+        return np.array([c["index"] for c in chans]), np.array([float(c["sigma"]) for c in chans])
 
     # -- probe (tmoc probe, T* estimates) --------------------------------------------
     probe_actions = probes.PROBE_ACTIONS
@@ -198,6 +253,21 @@ class StackAndPushDomain:
             state_mapping.block_index(self.spec, args[1])
         elif args != ["r", "tower", "start", "goal"]:
             raise ValueError(f"action: expected push(r,tower,start,goal), got {action!r}")
+
+
+GRAVITY = 9.81
+
+
+def held_weight(spec: StackAndPushSpec, log, action: str) -> float:
+    """What the wrist sensor says the hand holds (N), from a pickup's sensor log: the mean
+    vertical force over the last ``weigh_s`` of the lift (constant speed: no inertia), less
+    the empty gripper's weight. NaN when there is nothing to weigh."""
+    if log is None or not action.replace(" ", "").startswith("pickup("):
+        return float("nan")
+    sel = log.window(log.t_end - spec.weigh_s, log.t_end)
+    if not sel.any():
+        return float("nan")
+    return float(np.mean(log.wrist_force[sel, 2])) - GRIPPER_MASS * GRAVITY
 
 
 def _half_heights(objects: np.ndarray, rows: list[int]) -> dict[int, float]:

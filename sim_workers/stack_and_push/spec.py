@@ -16,7 +16,16 @@ class StackAndPushSpec:
     true_size: float = 0.045
     prior_low: float = 0.030
     prior_high: float = 0.060
-    density: float = 700.0          # kg/m^3, known to the agent (wood)
+    density: float = 700.0          # kg/m^3: known to the agent (wood), or the default truth
+    # Weight as an unknown (issue 14): L = (size, density) with a uniform density prior,
+    # learned from the wrist force while a block is held.
+    unknown_density: bool = False
+    density_low: float = 300.0      # kg/m^3, the prior (cork-ish to ceramic)
+    density_high: float = 3000.0
+    # Noise (N) of the held-weight channel; None: reported, weighed only when the density
+    # is unknown (then 0.1 N, an external wrist F/T sensor; a UR5e's built-in one is ~3.5 N).
+    force_sigma: float | None = None
+    weigh_s: float = 0.25           # the held weight is the mean over the lift's last 0.25 s
     # Supply row beside the rail (y < 0), one slot per block along x.
     init_row_x: float = -0.10
     init_row_y: float = -0.14
