@@ -105,6 +105,9 @@ def _friendly(err: dict, settings: Settings) -> str:
     typ = err.get("type", "")
     if loc[-1:] == ("reality",) and err.get("input") == "external" and typ == "literal_error":
         return "an external robot is driven through POST /v1/sessions; tasks use reality 'simulated'"
+    if loc[-1:] == ("domain",) and typ == "literal_error":
+        from coordinator.domains import names
+        return f"unknown domain {err.get('input')!r} (known: {', '.join(names())}; GET /v1/domains)"
     if typ == "less_than_equal" and loc[-1:] == ("particles",):
         return f"{msg} (this server's limit --max-particles {settings.max_particles})"
     if typ == "less_than_equal" and loc[-1:] == ("episodes",):
@@ -126,7 +129,7 @@ def validation_body(errors: list[dict], settings: Settings) -> dict:
     """The 422 body: the first MAX_ERRORS errors (`errors_total` says how many there were)."""
     detail = []
     for e in errors[:MAX_ERRORS]:
-        loc = list(e.get("loc", ()))
+        loc = [p for p in e.get("loc", ()) if not str(p).startswith(S.TAG_PREFIX)]   # the domain union's tag
         detail.append({"loc": loc, "msg": _friendly(e, settings), "type": e.get("type", "value_error")})
     message = "; ".join(f"{'body' if d['type'] == 'json_invalid' else _loc_text(d['loc'])}: {d['msg']}"
                         for d in detail[:5])
@@ -135,6 +138,22 @@ def validation_body(errors: list[dict], settings: Settings) -> dict:
         body["errors_total"] = len(errors)
         body["message"] += f" (and {len(errors) - len(detail)} more errors)"
     return jsonable_encoder(body)
+
+
+def refuse_invalid_config(spec: dict) -> None:
+    """A 422 naming the field when a schema-valid spec is still not a valid run (a
+    constraint across fields that no JSON schema states); never a 500 later."""
+    from pydantic import ValidationError
+
+    from .worker import run_config
+
+    try:
+        run_config(spec)
+    except ValidationError as exc:
+        err = exc.errors()[0]
+        msg = str(err.get("msg", "invalid")).removeprefix("Value error, ")
+        field = [str(p) for p in err.get("loc", ())] or [msg.split(":", 1)[0].split(".")[0]]
+        raise RequestValidationError([{"loc": ["body", *field], "msg": msg, "type": err.get("type", "value_error")}]) from None
 
 
 def unprocessable(settings: Settings, loc: list, msg: str, typ: str = "value_error") -> JSONResponse:
@@ -545,7 +564,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         """Queue a task (202). Limits: particles, episodes (422 naming the field) and the
         number of queued tasks (429)."""
         task_id = new_id("t")
-        body = spec.model_dump(mode="json")
+        body = S.spec_body(spec)
+        refuse_invalid_config(body)
         try:
             await run_in_threadpool(store().create_task, task_id, body, settings.max_queued)
         except QueueFull as exc:
@@ -725,7 +745,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     async def create_session(body: SessionCreate, response: Response):
         """A TMOC session whose real world is an external robot. With `observation`, its
         first episode starts at once and `next` is the first action to execute."""
-        spec = body.model_dump(mode="json", exclude={"observation"})
+        spec = S.spec_body(body, exclude={"observation"})
+        refuse_invalid_config(spec)
         initial = body.observation.model_dump(mode="json") if body.observation is not None else None
         try:
             session_id, nxt = await run_in_threadpool(store_box["sessions"].create, spec, initial)

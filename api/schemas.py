@@ -63,10 +63,10 @@ class _SpecBase(BaseModel):
         return data
 
 
-# Not over HTTP yet: which truth names and options are valid depends on the domain and
-# its options, and the published schema must accept every request it describes (the
-# schemathesis test holds it to that); a per-domain schema for them is issue 14's open part.
+# `truth` and `options` depend on the domain: each domain gets its own request model
+# (below), and the published schema is their union, chosen by `domain`.
 _CLI_ONLY = {"truth", "options"}
+TAG_PREFIX = "domain="      # the union's tags; error locations leave them out
 
 
 def _spec_fields(exclude: set[str], max_particles: int, max_episodes: int, max_steps: int) -> dict:
@@ -102,19 +102,97 @@ def _spec_fields(exclude: set[str], max_particles: int, max_episodes: int, max_s
     return fields
 
 
-def task_spec_model(max_particles: int, max_episodes: int, max_steps: int = 1000) -> type[BaseModel]:
-    """A task: the RunConfig fields, with this server's limits, and the kind of reality."""
+def _strict_model(name: str, doc: str, fields: dict) -> type[BaseModel]:
+    base = type(f"_{name}Base", (BaseModel,), {"model_config": ConfigDict(extra="forbid", strict=True,
+                                                                           allow_inf_nan=False)})
+    return create_model(name, __base__=base, __doc__=doc, **fields)
+
+
+def _field_of(name: str, decl: dict) -> tuple:
+    """A request field from a domain's declaration {type, description, ge/gt/le/lt}."""
+    kind = decl["type"]
+    bounds = {k: decl[k] for k in ("ge", "gt", "le", "lt") if k in decl}
+    return (kind | None, Field(None, description=decl.get("description", ""), **bounds))
+
+
+def _domain_models(domain: str) -> tuple[type[BaseModel], type[BaseModel]]:
+    """(options, truth) request models of `domain`, from what its physics half declares
+    (``http_options``, ``http_truth``): each field independently valid, so every request
+    the schema describes is one the domain accepts."""
+    from coordinator.domains import load
+
+    phys = load(domain).physics
+    label = "".join(w.title() for w in domain.replace("-", "_").split("_"))
+    options = {k: _field_of(k, d) for k, d in dict(getattr(phys, "http_options", {}) or {}).items()}
+    truth = {k: _field_of(k, d) for k, d in dict(getattr(phys, "http_truth", {}) or {}).items()}
+    return (_strict_model(f"{label}Options", f"Options of the {domain} domain (`tmoc domains`); "
+                                             "unset ones keep the domain's defaults.", options),
+            _strict_model(f"{label}Truth", f"The hidden truth of the {domain} domain besides "
+                                           "`true_size`, by the names of L; a property L does not "
+                                           "hold (the density without unknown_density) is a truth the "
+                                           "agent knows.", truth))
+
+
+def _per_domain(name: str, doc: str, fields: dict, with_truth: bool) -> Any:
+    """The union of one request model per registered domain, chosen by `domain` (default
+    container): each carries that domain's `options` (and `truth`)."""
+    from pydantic import Discriminator, Tag
+
+    from coordinator.domains import load, names
+
+    domain_info = fields["domain"][1]
+    branches = []
+    for d in names():
+        opts, truth = _domain_models(d)
+        own = {**fields, "options": (opts, Field(default_factory=opts, description=opts.__doc__))}
+        top = getattr(load(d).physics, "max_blocks", None)
+        if top is not None and "n_blocks" in own:
+            info = own["n_blocks"][1]
+            own["n_blocks"] = (int, Field(min(info.default, top), ge=1, le=int(top),
+                                          description=f"blocks in the scene (1..{top} in {d})"))
+        if with_truth:
+            own["truth"] = (truth, Field(default_factory=truth, description=truth.__doc__))
+        if d == "container":
+            own["domain"] = (Literal["container"], Field("container", description=domain_info.description))
+        else:
+            own["domain"] = (Literal[d], Field(description=domain_info.description))  # type: ignore[valid-type]
+        label = "".join(w.title() for w in d.replace("-", "_").split("_"))
+        model = create_model(f"{name}{label}", __base__=_SpecBase, __doc__=doc, **own)
+        branches.append(Annotated[model, Tag(TAG_PREFIX + d)])
+    if len(branches) == 1:
+        return branches[0]
+
+    def which(v: Any) -> str:
+        d = v.get("domain", "container") if isinstance(v, dict) else getattr(v, "domain", "container")
+        return TAG_PREFIX + (d if isinstance(d, str) and d in names() else "container")
+
+    from typing import Union
+
+    return Annotated[Union[tuple(branches)], Discriminator(which)]  # type: ignore[valid-type]
+
+
+def spec_body(spec: BaseModel, **dump) -> dict:
+    """A request's JSON as stored: `options` and `truth` without their unset (null) fields."""
+    body = spec.model_dump(mode="json", **dump)
+    for key in ("options", "truth"):
+        if isinstance(body.get(key), dict):
+            body[key] = {k: v for k, v in body[key].items() if v is not None}
+    return body
+
+
+def task_spec_model(max_particles: int, max_episodes: int, max_steps: int = 1000) -> Any:
+    """A task: the RunConfig fields, with this server's limits, and the kind of reality;
+    `options` and `truth` per domain."""
     fields = _spec_fields(set(), max_particles, max_episodes, max_steps)
     fields["reality"] = (Literal["simulated"], Field(
         "simulated", description="the real world of a task: a simulated grounded world holding "
-                                 "the hidden truth (`true_size`). An external robot is driven "
-                                 "through POST /v1/sessions instead."))
-    return create_model(
-        "TaskSpec", __base__=_SpecBase,
-        __doc__="A task spec: RunConfig fields (see `tmoc run`) and `reality`.", **fields)
+                                 "the hidden truth (`true_size`, `truth`). An external robot is "
+                                 "driven through POST /v1/sessions instead."))
+    return _per_domain("TaskSpec", "A task spec: RunConfig fields (see `tmoc run`) and `reality`.",
+                       fields, with_truth=True)
 
 
-def session_create_model(max_particles: int, max_episodes: int, max_steps: int = 1000) -> type[BaseModel]:
+def session_create_model(max_particles: int, max_episodes: int, max_steps: int = 1000) -> Any:
     """An external-robot session: the learning settings plus, optionally, the first
     episode's initial observation. The truth (`true_size`) is the robot's world, not a field."""
     fields = _spec_fields({"true_size", "known_properties"}, max_particles, max_episodes, max_steps)
@@ -122,10 +200,8 @@ def session_create_model(max_particles: int, max_episodes: int, max_steps: int =
         "external", description="the robot that posts observations is the real world"))
     fields["observation"] = (InitialObservation | None, Field(
         None, description="the robot's initial observation: starts episode 0 at once"))
-    return create_model(
-        "SessionCreate", __base__=_SpecBase,
-        __doc__="A session spec (RunConfig fields but the truth) and an optional initial observation.",
-        **fields)
+    return _per_domain("SessionCreate", "A session spec (RunConfig fields but the truth) and an "
+                       "optional initial observation.", fields, with_truth=False)
 
 
 # ------------------------------------------------------------------------- observations
@@ -223,6 +299,12 @@ class Histogram(BaseModel):
     weights: list[float]
 
 
+class Joint(BaseModel):
+    x_edges: list[float]
+    y_edges: list[float]
+    weights: list[list[float]]
+
+
 class BeliefSummary(BaseModel):
     n: int
     ess: float
@@ -231,6 +313,9 @@ class BeliefSummary(BaseModel):
     low: list[float]
     high: list[float]
     histogram: list[Histogram] = Field(description="one weighted histogram per property dimension")
+    joint: Joint | None = Field(None, description="with two dimensions (size, density): their "
+                                                  "joint weighted histogram, weights[i][j] for x bin i "
+                                                  "(dimension 0) and y bin j (dimension 1)")
     degenerate_updates: int
 
 
@@ -273,7 +358,11 @@ class StepView(BaseModel):
     action: str
     pose: list[float]
     trajectory: list[list[float]]
-    trajectory_columns: list[str] = TRAJECTORY_COLUMNS
+    trajectory_columns: list[str] = Field(
+        TRAJECTORY_COLUMNS, description="the trajectory's columns: t (s), x, y, z (m), yaw (rad), "
+        "opening (m); with mass in Y also grip_force (N per finger) and force_limit (N the wrist "
+        "may exert beyond carrying the gripper; below the scene's default, a guarded move: the "
+        "rest of the trajectory continues from where the gripper got to)")
     expected: list[str] = Field(description="the planned symbolic state after the action")
 
 

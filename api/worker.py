@@ -47,6 +47,10 @@ def new_id(prefix: str) -> str:
     return f"{prefix}_{uuid.uuid4().hex[:20]}"
 
 
+# Channels read from the sensors during an action (issue 14), last in a domain's vector.
+SENSED_CHANNELS = ("held_weight", "grasp_width")
+
+
 def run_config(spec: dict) -> RunConfig:
     """The RunConfig of a stored task or session spec (service-only fields dropped)."""
     fields = {k: v for k, v in spec.items() if k in RunConfig.model_fields}
@@ -492,6 +496,11 @@ class SessionManager:
         if body.get("measurements") is not None:
             # null: a channel the robot did not measure (e.g. the held weight after a stack)
             meas = np.array([np.nan if v is None else v for v in body["measurements"]], dtype=float)
+            # Channels a robot does not report at the end (e.g. a client written before the
+            # held weight and grasp width existed) are not measured: NaN, never a guess.
+            n_sensed = sum(1 for c in measurement_channels(domain) if c["name"] in SENSED_CHANNELS)
+            if derived.size - n_sensed <= meas.size < derived.size:
+                meas = np.concatenate([meas, np.full(derived.size - meas.size, np.nan)])
             if meas.shape != derived.shape:
                 names = ", ".join(c["name"] for c in measurement_channels(domain))
                 raise SessionConflict(f"measurements: {meas.size} values, expected {derived.size} "

@@ -196,6 +196,12 @@ class Belief:
                 self.particles[:, d], bins=int(bins), range=(self.low[d], self.high[d]), weights=w
             )
             hist.append({"edges": edges.tolist(), "weights": h.tolist()})
+        joint = None
+        if self.dim == 2:      # two properties (size, density): their joint, not just margins
+            h2, xe, ye = np.histogram2d(self.particles[:, 0], self.particles[:, 1], bins=int(bins),
+                                        range=[(self.low[0], self.high[0]), (self.low[1], self.high[1])],
+                                        weights=w)
+            joint = {"x_edges": xe.tolist(), "y_edges": ye.tolist(), "weights": h2.tolist()}
         return {
             "n": self.n,
             "ess": self.ess(),
@@ -204,6 +210,7 @@ class Belief:
             "low": self.low.tolist(),
             "high": self.high.tolist(),
             "histogram": hist,
+            "joint": joint,
             "degenerate_updates": int(self.degenerate_updates),
         }
 

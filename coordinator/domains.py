@@ -215,6 +215,11 @@ def check_options(name: str, options: dict, n_blocks: int | None = None) -> dict
     of its type; ValueError naming ``options.KEY`` otherwise."""
     base = load(name).physics
     known = options_of(base)
+    # An unset option (default None) takes the type its field declares: `bool | None`
+    # takes true or false, `float | None` a number.
+    declared = {f.name: str(f.type) for f in dataclasses.fields(base.spec)} if known else {}
+    known = {k: (False if v is None and declared.get(k, "").startswith("bool") else v)
+             for k, v in known.items()}
     for key, value in list(options.items()):
         if key in _NOT_OPTIONS:
             raise ValueError(f"options.{key}: set {'n_blocks' if key == 'n_blocks' else 'truth.size (--true-size)'} instead")

@@ -47,7 +47,7 @@ import numpy as np
 from .run_config import RunConfig
 
 # Appended, never reordered: a run's seed derives from its experiment's index here.
-EXPERIMENTS = ("compare", "particles", "milestones", "sizes", "likelihood", "robot")
+EXPERIMENTS = ("compare", "particles", "milestones", "sizes", "likelihood", "robot", "weights")
 ROBOT_EPISODES = tuple(range(0, 37, 4))            # Table II of the paper: episodes 0, 4, ..., 36
 AGENTS = ("tmoc", "tmp_rl", "gp", "toep")
 PARTICLE_FRACTIONS = (0.25, 0.5, 0.75, 1.0)      # paper: N = 50, 100, 150, 200
@@ -58,7 +58,8 @@ PAPER_SCALE = {"runs": 15, "episodes": 5000, "particles": 200}
 # Default scale: each finishes in under 30 minutes on 2 cores. Measured (whole command,
 # 2-core machine, truth 34 mm, docs/RESULTS.md): compare 19 min 6 s (T* estimate
 # included), particles 17 min 26 s, milestones 14 min 28 s, sizes 15 min 17 s,
-# likelihood 14 min 57 s. A TMOC episode costs about 1.8 s + 0.45 s per particle on one
+# likelihood 14 min 57 s; weights 36 min 30 s (with tests sharing the two cores; a heavy-
+# block episode replays pickups that slip and towers that fall). A TMOC episode costs about 1.8 s + 0.45 s per particle on one
 # core once learned; GP ~12 s at N = 16 (more trips), TMP-RL ~2 s, TOEP ~1 s.
 DEFAULT_SCALE = {
     "compare": {"runs": 3, "episodes": 30, "particles": 16},
@@ -67,7 +68,15 @@ DEFAULT_SCALE = {
     "sizes": {"runs": 3, "episodes": 30, "particles": 16},
     "likelihood": {"runs": 3, "episodes": 30, "particles": 16},
     "robot": {"runs": 3, "episodes": 37, "particles": 16},
+    "weights": {"runs": 3, "episodes": 6, "particles": 32},
 }
+# `weights` (issue 14): heavy blocks whose size is the prior mean, so that what TMP-RL
+# gets wrong is the mass alone (its grip is 69 % of what the blocks need; `tmoc probe
+# --believed-density`), on the one domain with density in L.
+WEIGHTS_DOMAIN = "stack_and_push"
+WEIGHTS_TRUE_SIZE = 0.045
+WEIGHTS_TRUE_DENSITY = 2400.0
+WEIGHTS_SIGMAS = (0.1, 3.5)       # N: an external wrist F/T sensor, a UR5e's built-in one
 DEFAULT_PROBE_TRIALS = 20
 # The experiments' hidden block size. Not the prior mean (45 mm, `tmoc run`'s default):
 # there a grasp computed from the prior mean already works (pickup tolerates about
@@ -144,6 +153,18 @@ def settings_for(name: str, particles: int) -> list[Setting]:
     if name == "robot":     # Table II: the real-robot run with the sizes given, and learned
         return [Setting("robot-given", "sizes given", {"agent": "tmoc", "known_properties": True}),
                 Setting("robot-learned", "sizes learned", {"agent": "tmoc"})]
+    if name == "weights":   # density learned with a fine and a coarse wrist sensor, or known
+        truth = {"density": WEIGHTS_TRUE_DENSITY}
+        learned = [Setting(f"weights-sigma{sg:g}", f"density learned, {sg:g} N",
+                           {"agent": "tmoc", "truth": truth,
+                            "options": {"unknown_density": True, "force_sigma": sg}})
+                   for sg in WEIGHTS_SIGMAS]
+        known = Setting("weights-known", "density known",
+                        {"agent": "tmoc", "options": {"density": WEIGHTS_TRUE_DENSITY, "force_from_mass": True}})
+        rl = Setting("weights-tmp_rl", "TMP-RL (prior-mean mass)",
+                     {"agent": "tmp_rl", "truth": truth,
+                      "options": {"unknown_density": True, "force_sigma": WEIGHTS_SIGMAS[0]}})
+        return [*learned, known, rl]
     raise ValueError(f"unknown experiment {name!r} (known: {', '.join(EXPERIMENTS)})")
 
 
@@ -232,6 +253,8 @@ def _t_star_params(spec: Spec, n_blocks: int = 8) -> dict:
               "seed": spec.probe_seed}
     if spec.domain != "container":          # (cached container estimates stay valid)
         params["domain"] = spec.domain
+    if spec.name == "weights":              # T* of the heavy blocks, Y at the true mass
+        params["options"] = {"density": WEIGHTS_TRUE_DENSITY, "force_from_mass": True}
     return params
 
 
@@ -253,9 +276,9 @@ def _probe_remote():
 
     @ray.remote(num_cpus=1)
     def probe_task(action: str, true_size: float, load_k: int, trials: int, seed: int,
-                   n_blocks: int, domain: str = "container") -> int:
+                   n_blocks: int, domain: str = "container", options: dict | None = None) -> int:
         return probe(action, true_size, true_size, load_k, trials, seed, n_blocks,
-                     domain=domain).successes
+                     domain=domain, options=options).successes
 
     return probe_task
 
@@ -265,7 +288,7 @@ def submit_probes(params: dict) -> list:
     task = _probe_remote()
     domain = params.get("domain", "container")
     return [task.remote(a, params["true_size"], k, params["trials"], params["seed"], params["n_blocks"],
-                        domain)
+                        domain, params.get("options"))
             for a, k in probe_jobs(params["n_blocks"], domain)]
 
 
@@ -548,13 +571,14 @@ def _rows(spec: Spec, out: Path, optimal: Optimality) -> tuple[list[dict], dict]
     rows, arrays = [], {}
     for k, s in enumerate(spec.settings):
         per = {"utility": [], "size_err": [], "optimal": [], "successes": [], "actions": [],
-               "wall_s": []}
+               "wall_s": [], "density_err": [], "density_std": []}
         for r in range(spec.runs):
             data = json.loads(run_path(out, s, r).read_text())
             cfg = data["config"]
             eps = data["episodes"]
             judge = not cfg["sizes_variation"]       # T* is probed with equal blocks
-            u, err, opt, succ, acts = [], [], [], [], []
+            u, err, opt, succ, acts, d_err, d_std = [], [], [], [], [], [], []
+            true_density = _true_density(cfg)
             for e in eps:
                 n_fail = int(sum(e["failures"].values()))
                 plan_loads = list(e["plans"][0]) if e.get("plans") else []
@@ -572,18 +596,39 @@ def _rows(spec: Spec, out: Path, optimal: Optimality) -> tuple[list[dict], dict]
                     "optimal_plan": "" if is_opt is None else int(is_opt),
                     "success_rate": "" if rate is None else rate,
                 })
+                dens = (e["posterior"].get("properties") or {}).get("density")
+                if spec.name == "weights":
+                    rows[-1].update(_density_cells(dens, true_density))
+                d_err.append(np.nan if dens is None or true_density is None
+                             else abs(dens["mean"] - true_density))
+                d_std.append(np.nan if dens is None else dens["std"])
                 u.append(e["utility"])
                 err.append(rows[-1]["size_error"])
                 opt.append(np.nan if is_opt is None else float(is_opt))
                 succ.append(e["actions"] - n_fail)
                 acts.append(e["actions"])
             for key, v in (("utility", u), ("size_err", err), ("optimal", opt),
-                           ("successes", succ), ("actions", acts)):
+                           ("successes", succ), ("actions", acts), ("density_err", d_err),
+                           ("density_std", d_std)):
                 per[key].append(v)
             per["wall_s"].append(data["runtime"]["wall_s"])
         arrays[s.label] = {key: (np.array(v, dtype=float) if key != "wall_s" else v)
                            for key, v in per.items()}
     return rows, arrays
+
+
+def _true_density(cfg: dict) -> float | None:
+    """The run's true block density: the hidden truth's, or the known one it was set to."""
+    value = (cfg.get("truth") or {}).get("density", (cfg.get("options") or {}).get("density"))
+    return None if value is None else float(value)
+
+
+def _density_cells(dens: dict | None, truth: float | None) -> dict:
+    """CSV cells of the density posterior (empty where L has no density: it is known)."""
+    if dens is None:
+        return {"density_mean": "", "density_std": "", "density_error": ""}
+    return {"density_mean": dens["mean"], "density_std": dens["std"],
+            "density_error": "" if truth is None else abs(dens["mean"] - truth)}
 
 
 def convergence_episode(curve: np.ndarray, band: float = CONVERGENCE_BAND) -> tuple[int | None, float, int]:
@@ -640,6 +685,17 @@ def summarize(spec: Spec, arrays: dict, optimal: Optimality) -> dict:
                                                              / max(1.0, a["actions"][:, -tail:].sum())),
             "mean_wall_s_per_run": float(np.mean(a["wall_s"])),
         }
+        if spec.name == "weights":
+            truth = _true_density(cfg.model_dump())
+            d_err, d_std = a["density_err"][:, -1], a["density_std"][:, -1]
+            learned = not np.all(np.isnan(d_err))
+            settings[s.label].update({
+                "true_density": truth,
+                "density_in_L": bool(learned or not np.all(np.isnan(d_std))),
+                "final_density_error": _nan_mean(d_err) if learned else None,
+                "final_density_error_pct": (100 * _nan_mean(d_err) / truth) if learned and truth else None,
+                "final_density_std": _nan_mean(d_std),
+            })
     summary = {
         "experiment": spec.name, "spec": spec.to_dict(), "settings": settings,
         "optimum_under_true_T": {"loads": optimal.best_loads, "expected_utility": optimal.best_value},
@@ -664,6 +720,11 @@ def summarize(spec: Spec, arrays: dict, optimal: Optimality) -> dict:
         summary["milestones"] = milestone_table(spec, arrays)
     if spec.name == "robot":
         summary["table_ii"] = robot_table(spec, arrays)
+    if spec.name == "weights":
+        summary["definitions"]["final_density_error"] = (
+            "|posterior density mean - true density| after the last episode, kg/m^3, mean over "
+            "runs (TMP-RL: the prior mean's; none where the density is known, not in L)")
+        summary["definitions"]["final_density_std"] = "the density posterior's std after the last episode, kg/m^3"
     return summary
 
 
@@ -691,7 +752,8 @@ def milestone_table(spec: Spec, arrays: dict) -> list[dict]:
 
 def write_csv(rows: list[dict], path: Path) -> None:
     buf = io.StringIO()
-    w = csv.DictWriter(buf, fieldnames=CSV_COLUMNS, lineterminator="\n")
+    extra = [k for k in ("density_mean", "density_std", "density_error") if rows and k in rows[0]]
+    w = csv.DictWriter(buf, fieldnames=[*CSV_COLUMNS, *extra], lineterminator="\n")
     w.writeheader()
     for row in rows:
         w.writerow({k: (repr(v) if isinstance(v, float) else v) for k, v in row.items()})
@@ -724,13 +786,24 @@ def plot(spec: Spec, arrays: dict, summary: dict, path: Path) -> None:
         fig.suptitle(f"milestones: TMOC, {spec.runs} runs, N = {spec.particles}, "
                      f"true size {spec.true_size * 1000:.0f} mm")
     else:
-        fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(11, 3.8))
+        weights = spec.name == "weights"
+        fig, axes = plt.subplots(1, 3 if weights else 2, figsize=(16 if weights else 11, 3.8))
+        ax1, ax2 = axes[0], axes[1]
         x = np.arange(1, spec.episodes + 1)
         for label, a in arrays.items():
-            for ax, v, scale in ((ax1, a["utility"], 1.0), (ax2, a["size_err"], 1000.0)):
+            panels = [(ax1, a["utility"], 1.0), (ax2, a["size_err"], 1000.0)]
+            if weights:
+                panels.append((axes[2], a["density_err"], 1.0))
+            for ax, v, scale in panels:
+                if np.all(np.isnan(v)):        # the density known: nothing to plot
+                    ax.plot([], [])
+                    continue
                 m, s = v.mean(axis=0) * scale, v.std(axis=0) * scale
                 line, = ax.plot(x, m, label=label, marker="o" if len(x) < 30 else None, ms=3)
                 ax.fill_between(x, m - s, m + s, alpha=0.2, color=line.get_color())
+        if weights:
+            axes[2].set_xlabel("episode"); axes[2].set_ylabel("|density mean - truth| (kg/m^3)")
+            axes[2].set_title("posterior error of the density", fontsize=10)
         ax1.set_xlabel("episode"); ax1.set_ylabel("utility")
         ax1.set_title("utility (mean ± 1 std over runs)")
         means = np.concatenate([a["utility"].mean(axis=0) for a in arrays.values()])
@@ -747,11 +820,12 @@ def plot(spec: Spec, arrays: dict, summary: dict, path: Path) -> None:
         ax2.set_title("posterior error of L (agents without a belief: the prior mean's)", fontsize=10)
         from matplotlib.ticker import MaxNLocator
 
-        for ax in (ax1, ax2):
+        for ax in axes:
             ax.xaxis.set_major_locator(MaxNLocator(integer=True))
         ax1.legend(fontsize=8)
         fig.suptitle(f"{spec.name}: {spec.runs} runs x {spec.episodes} episodes, "
-                     f"true size {spec.true_size * 1000:.0f} mm")
+                     f"true size {spec.true_size * 1000:.0f} mm"
+                     + (f", density {WEIGHTS_TRUE_DENSITY:.0f} kg/m^3" if weights else ""))
     fig.tight_layout()
     tmp = path.with_name(path.name + f".tmp{os.getpid()}.png")
     fig.savefig(tmp, dpi=90)
@@ -808,6 +882,17 @@ def summary_table(summary: dict) -> str:
         for row in summary["table_ii"]:
             lines.append(f"| {row['setting']} | " + " | ".join(
                 f"{c['mean']:.0f} ({c['std']:.0f})" for c in row["episodes"].values()) + " |")
+    if summary["experiment"] == "weights":
+        lines += ["", "| setting | density | posterior error of the density, last episode "
+                      "| density posterior std | posterior error of the size (mm) |",
+                  "|---|---|---|---|---|"]
+        for label, v in summary["settings"].items():
+            err = ("-" if v["final_density_error"] is None
+                   else f"{v['final_density_error']:.0f} kg/m^3 ({v['final_density_error_pct']:.1f} %)")
+            std = "-" if v["final_density_std"] is None else f"{v['final_density_std']:.0f} kg/m^3"
+            where = ("known" if not v["density_in_L"] else "prior mean" if not agent(v["agent"]).learn_belief
+                     else "learned")
+            lines.append(f"| {label} | {where} | {err} | {std} | {v['final_posterior_error_mm']:.1f} |")
     if "milestones" in summary:
         lines += ["", "| setting | episodes | optimal plans (mean ± std) | successful actions (mean ± std) |",
                   "|---|---|---|---|"]

@@ -66,6 +66,8 @@ class RunConfig(BaseModel):
     shards: int | None = Field(None, ge=0, le=4096)
     # The hidden truth by the names of L (`tmoc domains`), e.g. {"size": 0.04, "density":
     # 2400}; `true_size` is the same as truth["size"] (both may be given if they agree).
+    # A property the domain knows but L does not hold (the density without the option
+    # unknown_density) is a truth the agent knows: it becomes that option's value.
     truth: dict[str, float] = Field(default_factory=dict)
     # Domain options (scalar fields of the domain's physics spec), e.g.
     # {"unknown_density": true, "force_sigma": 0.1}; they reach every world, real and particle.
@@ -85,6 +87,18 @@ class RunConfig(BaseModel):
             self.true_size = float(size)
         phys = load(self.domain, n_blocks=self.n_blocks, **self.options).physics
         L = property_space(phys)
+        known = [n for n in self.truth if n not in L.names and n != "size"
+                 and isinstance(getattr(getattr(phys, "spec", None), n, None), float)]
+        for name in known:
+            value = float(self.truth.pop(name))
+            if name in self.options and self.options[name] != value:
+                raise ValueError(f"truth.{name}: {value} disagrees with options.{name} {self.options[name]}")
+            try:
+                self.options = check_options(self.domain, {**self.options, name: value}, self.n_blocks)
+            except ValueError as exc:
+                raise ValueError(f"truth.{name}: {str(exc).split(': ', 2)[-1]}") from None
+        if known:
+            phys = load(self.domain, n_blocks=self.n_blocks, **self.options).physics
         for name in self.truth:
             if name not in L.names:
                 raise ValueError(f"truth.{name}: not a property of L for domain {self.domain!r} "

@@ -16,6 +16,7 @@ import numpy as np
 
 from planner.motion import Bounds, MotionPlanningError, box_checker, plan_approach, plan_transit
 from sim_workers.configuration import Configuration
+from sim_workers.trajectory import columns_of
 
 from .agents import agent as agent_spec
 from .belief import Belief, gaussian_log_likelihood, mode_mask, symbolic_log_likelihood
@@ -31,15 +32,16 @@ WORKSPACE = Bounds(np.array([-0.5, -0.6, 0.0, -np.pi]), np.array([1.2, 0.6, 0.6,
 @dataclass
 class PendingStep:
     action: str
-    pose: np.ndarray              # the real pose x: weighted mean of the particles' Y
-    trajectory: np.ndarray        # (T, 6) t, x, y, z, yaw, opening
+    pose: np.ndarray              # the real pose x (Y of the mode's particles; with mass in Y, + effort)
+    trajectory: np.ndarray        # (T, 6) t, x, y, z, yaw, opening (+ grip_force, force_limit)
     expected: frozenset[str]      # the planned effect
     transit_end: float            # when the free-space transit ends
     particle_poses: np.ndarray | None = None
 
     def to_dict(self) -> dict:
         return {"action": self.action, "pose": self.pose.tolist(),
-                "trajectory": self.trajectory.tolist(), "expected": sorted(self.expected)}
+                "trajectory": self.trajectory.tolist(),
+                "trajectory_columns": list(columns_of(self.trajectory)), "expected": sorted(self.expected)}
 
 
 @dataclass

@@ -35,6 +35,7 @@ class SensorLog:
     wrist_force: np.ndarray    # (S, 3)
     opening: np.ndarray        # (S,)
     t_end: float               # when the trajectory ended (the rest is settling)
+    commanded: np.ndarray | None = None   # (S, 5+) what the gripper was told at each step
 
     def window(self, t0: float, t1: float) -> np.ndarray:
         """Boolean mask of the steps with t0 < t <= t1."""
@@ -60,6 +61,7 @@ class GroundedWorld:
         self.handles = None
         self.props: dict | None = None
         self._sent_pose = self._sent_q = None
+        self._weight: float | None = None
         self.settle_s = float(getattr(domain.spec, "settle_s", 1.0))
 
     # -- lifecycle ---------------------------------------------------------------------
@@ -80,6 +82,7 @@ class GroundedWorld:
         props = self.domain.properties(props)
         pb.resetSimulation(physicsClientId=self.client)
         self.handles = self.domain.build(self.client, props)
+        self._weight = None
         self.props = props
         placed = self.domain.place(config, props) if place else config
         self._apply(placed)
@@ -92,10 +95,19 @@ class GroundedWorld:
             pb.resetBaseVelocity(body, [0, 0, 0], [0, 0, 0], physicsClientId=c)
         self._set_gripper(config.robot, reset=True)
 
-    def _set_gripper(self, robot: np.ndarray, reset: bool = False) -> None:
+    def _set_gripper(self, target: np.ndarray, reset: bool = False) -> None:
+        """Command the gripper to `target` (x, y, z, yaw, opening[, grip_force, force_limit]).
+
+        Without the effort entries the scene's fixed grip force and wrist limit apply. A
+        force limit below the scene's is a force-limited motion (a push): the arm then
+        carries the gripper's own weight by gravity compensation, as an arm controller
+        does, so that the limit caps what the wrist exerts on the world (a fixed
+        constraint's ``maxForce`` caps each of its rows, the vertical one included)."""
         h, c = self.handles, self.client
-        pose = tuple(float(v) for v in robot[:4])
-        q = float(robot[4]) / 2.0 + h.finger_inner
+        pose = tuple(float(v) for v in target[:4])
+        q = float(target[4]) / 2.0 + h.finger_inner
+        grip = float(target[5]) if len(target) > 5 else h.grip_force
+        limit = float(target[6]) if len(target) > 6 else self.domain.spec.base_max_force
         if reset:
             self._sent_pose = self._sent_q = None
             pos = [pose[0], pose[1], pose[2] + h.palm_offset]
@@ -105,16 +117,28 @@ class GroundedWorld:
                 pb.resetJointState(h.gripper, j, q, 0.0, physicsClientId=c)
         # Commands are sent only when they change: they hold until replaced, and two
         # pybullet calls per step are a fifth of a step's cost.
-        if pose != self._sent_pose:
+        if (pose, limit) != self._sent_pose:
             pb.changeConstraint(h.base_constraint, jointChildPivot=[pose[0], pose[1], pose[2] + h.palm_offset],
                                 jointChildFrameOrientation=quat_from_yaw(pose[3]),
-                                maxForce=self.domain.spec.base_max_force, physicsClientId=c)
-            self._sent_pose = pose
-        if q != self._sent_q:
+                                maxForce=limit, physicsClientId=c)
+            self._sent_pose = (pose, limit)
+        if (q, grip) != self._sent_q:
             pb.setJointMotorControlArray(h.gripper, list(h.fingers), pb.POSITION_CONTROL,
-                                         targetPositions=[q, q], forces=[h.grip_force] * 2,
+                                         targetPositions=[q, q], forces=[grip] * 2,
                                          physicsClientId=c)
-            self._sent_q = q
+            self._sent_q = (q, grip)
+        if limit < self.domain.spec.base_max_force:
+            # External forces last one step: applied anew before every step.
+            pb.applyExternalForce(h.gripper, -1, [0.0, 0.0, self._gripper_weight()], [0.0, 0.0, 0.0],
+                                  pb.LINK_FRAME, physicsClientId=c)
+
+    def _gripper_weight(self) -> float:
+        """The gripper's weight (N): palm and fingers, read from the built bodies."""
+        if self._weight is None:
+            h, c = self.handles, self.client
+            mass = sum(pb.getDynamicsInfo(h.gripper, link, physicsClientId=c)[0] for link in (-1, *h.fingers))
+            self._weight = mass * -pb.getPhysicsEngineParameters(physicsClientId=c)["gravityAccelerationZ"]
+        return self._weight
 
     def observe(self) -> Configuration:
         """The current configuration (gripper tool point, opening, object poses)."""
@@ -155,7 +179,7 @@ class GroundedWorld:
             objects[i, :2] = target[:2] + rel
             objects[i, 2] += target[2] - now.robot[2]
             objects[i, 3:] = quat_from_yaw(yaw_of(objects[i, 3:]) + dyaw)
-        robot = target.copy()
+        robot = target[:5].copy()     # the pose; efforts are commands, not configuration
         robot[4] = now.robot[4]
         self._apply(Configuration(robot, objects))
 
@@ -180,8 +204,14 @@ class GroundedWorld:
         steps = 0
         # A domain that reads sensors during the action says so; the others pay nothing.
         logging = bool(getattr(self.domain, "logs_sensors", False))
+        if logging and hasattr(self.domain, "senses"):     # only the actions whose log is read
+            logging = bool(self.domain.senses(action))
         force, opening = [], []
+        guarded = targets.shape[1] > 6 and bool(np.any(targets[:, 6] < self.domain.spec.base_max_force))
+        was_guarded, offset = False, np.zeros(3)
         for k, (t, target) in enumerate(zip(times, targets)):
+            if guarded:
+                target, was_guarded, offset = self._guard(target, was_guarded, offset)
             self._set_gripper(target)
             pb.stepSimulation(physicsClientId=self.client)
             steps += 1
@@ -197,11 +227,25 @@ class GroundedWorld:
             config = after
         if logging:
             log = SensorLog(times[:steps].copy(), np.array(force, dtype=np.float64).reshape(-1, 3),
-                            np.array(opening, dtype=np.float64), t_end)
+                            np.array(opening, dtype=np.float64), t_end, targets[:steps].copy())
             meas = self.domain.measurements(config, log, action)
         else:
             meas = self.domain.measurements(config)
         return Outcome(config, self.domain.symbolic_state(config), meas, steps)
+
+    def _guard(self, target: np.ndarray, was_guarded: bool, offset: np.ndarray):
+        """A force-limited (guarded) segment ends where the gripper got to, not where its
+        reference went: the rest of the trajectory is shifted by the gap at that moment,
+        as a robot continues from where a guarded move stopped (else the full wrist force
+        would snap the gripper to the reference and through whatever held it back)."""
+        now_guarded = target[6] < self.domain.spec.base_max_force
+        if was_guarded and not now_guarded:
+            pos, _ = pb.getBasePositionAndOrientation(self.handles.gripper, physicsClientId=self.client)
+            offset = np.array([pos[0], pos[1], pos[2] - self.handles.palm_offset]) - self._sent_pose[0][:3]
+        if np.any(offset):
+            target = target.copy()
+            target[:3] += offset
+        return target, now_guarded, offset
 
     def _opening(self) -> float:
         h = self.handles

@@ -28,6 +28,8 @@ class ProbeResult:
     true_size: float
     believed_size: float
     load: int
+    true_density: float | None = None       # kg/m^3, when the probe sets or believes one
+    believed_density: float | None = None
 
     @property
     def success_rate(self) -> float:
@@ -78,12 +80,15 @@ def probe_actions(domain_name: str) -> tuple[str, ...]:
 
 def run_trial(action: str, true_size: float, believed_size: float, load_k: int,
               rng: np.random.Generator, n_blocks: int = 8, options: dict | None = None,
-              domain: str = "container") -> bool:
+              domain: str = "container", believed_density: float | None = None) -> bool:
     """One seeded trial; True when the action had its intended symbolic effect. The world
     is the domain with jittered friction; what the trial does is the domain's
     ``probe_trial`` (each domain knows how to set up its own actions)."""
     world_domain = jittered_domain(rng, domain=domain, n_blocks=n_blocks, **(options or {}))
-    return bool(world_domain.probe_trial(action, true_size, believed_size, load_k, rng))
+    if believed_density is None:
+        return bool(world_domain.probe_trial(action, true_size, believed_size, load_k, rng))
+    return bool(world_domain.probe_trial(action, true_size, believed_size, load_k, rng,
+                                         believed_density=believed_density))
 
 
 def probe_loads(domain_obj, action: str) -> range:
@@ -95,19 +100,41 @@ def probe_loads(domain_obj, action: str) -> range:
 
 def probe(action: str, true_size: float, believed_size: float | None = None, load_k: int = 4,
           trials: int = 20, seed: int = 0, n_blocks: int = 8, options: dict | None = None,
-          domain: str = "container") -> ProbeResult:
-    """Run `trials` seeded trials of `action` (one of the domain's ``probe_actions``)."""
+          domain: str = "container", believed_density: float | None = None) -> ProbeResult:
+    """Run `trials` seeded trials of `action` (one of the domain's ``probe_actions``).
+
+    `believed_density` (kg/m^3) is what Y believes; it needs a domain whose Y uses mass
+    (its ``force_from_mass``; on by default here when a believed density is given)."""
+    options = dict(options or {})
+    if believed_density is not None:
+        options = mass_in_y_options(domain, options)
     actions = probe_actions(domain)
     if not actions:
         raise ValueError(f"domain: {domain!r} has no probe")
     if action not in actions:
         raise ValueError(f"action: {action!r} is not one of {', '.join(actions)}")
     believed = true_size if believed_size is None else believed_size
-    loads = probe_loads(load(domain, **{**(options or {}), "n_blocks": n_blocks}), action)
+    world = load(domain, **{**options, "n_blocks": n_blocks})
+    loads = probe_loads(world, action)
     if load_k not in loads:
         raise ValueError(f"load: {load_k} is outside [{loads.start}, {loads.stop - 1}]")
     # One child generator per trial: trial t's outcome does not depend on the trial count.
     children = np.random.default_rng(seed).spawn(trials)
-    wins = sum(run_trial(action, true_size, believed, load_k, rng, n_blocks, options, domain)
+    wins = sum(run_trial(action, true_size, believed, load_k, rng, n_blocks, options, domain, believed_density)
                for rng in children)
-    return ProbeResult(action, trials, int(wins), float(true_size), float(believed), int(load_k))
+    true_density = getattr(world.spec, "density", None) if believed_density is not None or "density" in options else None
+    return ProbeResult(action, trials, int(wins), float(true_size), float(believed), int(load_k),
+                       None if true_density is None else float(true_density),
+                       None if believed_density is None else float(believed_density))
+
+
+def mass_in_y_options(domain: str, options: dict) -> dict:
+    """`options` with mass in Y switched on (``force_from_mass``) unless set; a ValueError
+    naming the option when the domain has none or it was switched off (a believed
+    density would otherwise be dropped silently)."""
+    fields = {f.name for f in dataclasses.fields(load(domain).spec)}
+    if "force_from_mass" not in fields:
+        raise ValueError(f"believed_density: mass does not enter Y in the {domain} domain")
+    if options.get("force_from_mass") is False:
+        raise ValueError("believed_density: needs mass in Y (the option force_from_mass is false)")
+    return {**options, "force_from_mass": True}

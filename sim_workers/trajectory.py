@@ -1,9 +1,16 @@
-"""Timed gripper trajectories: rows of (t, x, y, z, yaw, opening), t in seconds from 0."""
+"""Timed gripper trajectories: rows of (t, x, y, z, yaw, opening), t in seconds from 0.
+
+A trajectory may carry two more columns, the efforts a domain chose from the believed
+mass (issue 14): ``grip_force`` (N per finger) and ``force_limit`` (N, the most the
+wrist may exert beyond carrying the gripper's own weight). Without them the world uses
+the scene's fixed grip force and wrist limit.
+"""
 from __future__ import annotations
 
 import numpy as np
 
 COLUMNS = ("t", "x", "y", "z", "yaw", "opening")
+EFFORT_COLUMNS = ("grip_force", "force_limit")
 
 
 def wrap_angle(a):
@@ -66,17 +73,39 @@ def concatenate(*parts: np.ndarray) -> np.ndarray:
 
 
 def sample(traj: np.ndarray, times: np.ndarray) -> np.ndarray:
-    """Linear interpolation of every channel at `times` (held constant past the end)."""
+    """Every channel at `times` (held constant past the end): the pose and opening
+    interpolated linearly, the efforts held from the last row at or before t (they are
+    commands that switch, not quantities that move)."""
     traj = np.asarray(traj, dtype=np.float64)
-    return np.column_stack([np.interp(times, traj[:, 0], traj[:, k]) for k in range(1, 6)])
+    times = np.asarray(times, dtype=np.float64)
+    cols = [np.interp(times, traj[:, 0], traj[:, k]) for k in range(1, len(COLUMNS))]
+    if traj.shape[1] > len(COLUMNS):
+        row = np.clip(np.searchsorted(traj[:, 0], times, side="right") - 1, 0, len(traj) - 1)
+        cols += [traj[row, k] for k in range(len(COLUMNS), traj.shape[1])]
+    return np.column_stack(cols)
+
+
+def with_efforts(traj: np.ndarray, grip_force, force_limit) -> np.ndarray:
+    """`traj` with the two effort columns (scalars or one value per row) appended."""
+    traj = np.asarray(traj, dtype=np.float64)
+    n = len(traj)
+    return np.column_stack([traj, np.broadcast_to(grip_force, (n,)), np.broadcast_to(force_limit, (n,))])
+
+
+def columns_of(traj: np.ndarray) -> tuple[str, ...]:
+    """The column names of a validated trajectory."""
+    return COLUMNS if np.asarray(traj).shape[-1] == len(COLUMNS) else COLUMNS + EFFORT_COLUMNS
 
 
 def validate(traj) -> np.ndarray:
     arr = np.asarray(traj, dtype=np.float64)
-    if arr.ndim != 2 or arr.shape[1] != 6 or len(arr) < 1:
-        raise ValueError(f"trajectory: expected shape (M, 6) (t, x, y, z, yaw, opening), got {arr.shape}")
+    if arr.ndim != 2 or arr.shape[1] not in (6, 8) or len(arr) < 1:
+        raise ValueError(f"trajectory: expected shape (M, 6) (t, x, y, z, yaw, opening) or (M, 8) "
+                         f"(... grip_force, force_limit), got {arr.shape}")
     if not np.isfinite(arr).all():
         raise ValueError("trajectory: contains non-finite values")
     if np.any(np.diff(arr[:, 0]) < 0):
         raise ValueError("trajectory: times must not decrease")
+    if arr.shape[1] == 8 and np.any(arr[:, 6:] <= 0):
+        raise ValueError("trajectory: grip_force and force_limit must be positive")
     return arr

@@ -27,11 +27,13 @@ def register(sub) -> None:
         description=("Runs every setting of the experiment `runs` times (seeded, independent, one "
                      "Ray task and one CPU per run), keeps finished runs in DIR/runs/ and writes "
                      "DIR/NAME.png, DIR/NAME.csv and DIR/NAME.json.\n\n"
-                     f"Default scale (each < 30 min on 2 cores): {defaults}.\n"
+                     f"Default scale (each < 30 min on 2 cores, but weights: 36 min measured): {defaults}.\n"
                      f"--scale paper: {PAPER_SCALE['runs']} runs x {PAPER_SCALE['episodes']} "
                      f"episodes, N {PAPER_SCALE['particles']}. Explicit flags win over either."))
     p.add_argument("name", metavar="NAME", help=" | ".join(EXPERIMENTS))
-    p.add_argument("--domain", default="container", help="a registered domain (see tmoc domains)")
+    p.add_argument("--domain", default=None,
+                   help="a registered domain (see tmoc domains; default container, and "
+                        "stack_and_push for `weights`)")
     p.add_argument("--runs", type=int, default=None, help="independent runs per setting")
     p.add_argument("--episodes", type=int, default=None, help="episodes per run")
     p.add_argument("--particles", type=int, default=None,
@@ -39,9 +41,10 @@ def register(sub) -> None:
     p.add_argument("--seed", type=int, default=0, help="experiment seed S (run seeds derive from it)")
     p.add_argument("--scale", default="default", help="default | paper")
     p.add_argument("--max-steps", type=int, default=60, help="action limit per episode")
-    p.add_argument("--true-size", type=float, default=EXPERIMENT_TRUE_SIZE,
+    p.add_argument("--true-size", type=float, default=None,
                    help=f"hidden block size (m; default {EXPERIMENT_TRUE_SIZE}, off the prior mean "
-                        "0.045 on purpose: see docs/RESULTS.md)")
+                        "0.045 on purpose: see docs/RESULTS.md; `weights`: 0.045, so that only "
+                        "the mass is off for TMP-RL)")
     p.add_argument("--milestones", default=None,
                    help="`milestones`: comma-separated episodes (default: 5 evenly spaced)")
     p.add_argument("--probe-trials", type=int, default=DEFAULT_PROBE_TRIALS,
@@ -70,6 +73,10 @@ def spec_from_args(args):
         raise UsageError(f"NAME: unknown experiment {args.name!r} (known: {', '.join(ex.EXPERIMENTS)})")
     from ..domains import names as domain_names
 
+    if args.domain is None:
+        args.domain = ex.WEIGHTS_DOMAIN if args.name == "weights" else "container"
+    if args.true_size is None:
+        args.true_size = ex.WEIGHTS_TRUE_SIZE if args.name == "weights" else ex.EXPERIMENT_TRUE_SIZE
     if args.domain not in domain_names():
         raise UsageError(f"--domain: unknown domain {args.domain!r} (known: {', '.join(domain_names())})")
     if args.scale not in ("default", "paper"):
@@ -105,7 +112,10 @@ def spec_from_args(args):
             ex.run_config(spec, k, 0)
     except ValidationError as exc:
         err = exc.errors()[0]
-        field = str(err["loc"][0])
+        field = str(err["loc"][0]) if err["loc"] else ""
+        if args.name == "weights" and ("options." in err["msg"] or "truth." in err["msg"]):
+            raise UsageError(f"--domain: the weights experiment needs density in L, which "
+                             f"{args.domain!r} does not have ({err['msg'].removeprefix('Value error, ')})") from None
         raise UsageError(f"{_FLAGS.get(field, '--' + field.replace('_', '-'))}: {err['msg']} "
                          f"(got {err.get('input')!r})") from None
     return spec

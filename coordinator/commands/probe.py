@@ -7,10 +7,19 @@ Each trial builds a world with true block size S, jitters block placement (a few
 friction (about 10 %) from the seed, takes the action's poses from Y with the believed
 size B (default S) and reads the outcome through Y^-1. `--load K` is the number of blocks
 in the container for `push` and the number of blocks stacked for `stack`.
+
+Mass in Y (stack_and_push): `--true-density` sets the blocks' density in the world and
+`--believed-density` the density Y sizes the grip force and the push's force limit from
+(too light a belief: the block slips on the lift, the push stalls; too heavy: the push
+throws the tower), e.g.
+
+    tmoc probe --domain stack_and_push --action push --load 4 --true-size 0.045 \
+        --true-density 2400 --believed-density 1650 --trials 12
 """
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import math
 
@@ -40,6 +49,13 @@ def register(subparsers) -> None:
                    help="container: blocks loaded (push) or stacked (stack); stack_and_push: the "
                         "tower height before a stack (0..N-1), pushed or left alone (1..N); "
                         f"default {DEFAULT_LOAD}")
+    p.add_argument("--true-density", type=float, default=None, metavar="RHO",
+                   help="the blocks' density in the world (kg/m^3; stack_and_push; default the "
+                        "domain's, 700)")
+    p.add_argument("--believed-density", type=float, default=None, metavar="RHO",
+                   help="the density Y believes (kg/m^3): the grip force and the push's force "
+                        "limit come from the believed mass (stack_and_push; default: mass does "
+                        "not enter Y)")
     p.add_argument("--trials", type=int, default=20, metavar="N", help="number of trials (default 20)")
     p.add_argument("--seed", type=int, default=0, metavar="SEED", help="random seed (default 0)")
     p.add_argument("--json", action="store_true", help="print one JSON object instead of a line")
@@ -54,6 +70,16 @@ def _check_size(flag: str, value: float) -> float:
     if not MIN_SIZE_M <= value <= MAX_SIZE_M:
         raise UsageError(f"{flag}: {value!r} m is outside the property range "
                          f"[{MIN_SIZE_M}, {MAX_SIZE_M}] m")
+    return value
+
+
+def _check_density(flag: str, value: float) -> float:
+    from sim_workers.properties import MAX_DENSITY, MIN_DENSITY
+
+    if not math.isfinite(value):
+        raise UsageError(f"{flag}: {value!r} is not a finite number")
+    if not MIN_DENSITY <= value <= MAX_DENSITY:
+        raise UsageError(f"{flag}: {value!r} kg/m^3 is outside [{MIN_DENSITY:g}, {MAX_DENSITY:g}] kg/m^3")
     return value
 
 
@@ -84,14 +110,34 @@ def run(args: argparse.Namespace) -> int:
     if args.seed < 0:
         raise UsageError(f"--seed: {args.seed} must not be negative")
 
-    result = probe(args.action, true_size, believed, load_k=args.load, trials=args.trials,
-                   seed=args.seed, n_blocks=n_blocks, domain=args.domain)
+    options = {}
+    for flag, value in (("--true-density", args.true_density), ("--believed-density", args.believed_density)):
+        if value is not None:
+            _check_density(flag, value)
+            if "density" not in {f.name for f in dataclasses.fields(world_domain.spec)}:
+                raise UsageError(f"{flag}: the {args.domain} domain has no block density to set")
+    if args.true_density is not None:
+        options["density"] = args.true_density
+    try:
+        result = probe(args.action, true_size, believed, load_k=args.load, trials=args.trials,
+                       seed=args.seed, n_blocks=n_blocks, domain=args.domain, options=options,
+                       believed_density=args.believed_density)
+    except ValueError as exc:
+        if str(exc).startswith("believed_density:"):
+            raise UsageError(f"--believed-density: {str(exc).split(': ', 1)[1]}") from None
+        raise
     if args.json:
         out = {"domain": args.domain, **result.to_dict(), "seed": args.seed, "n_blocks": n_blocks}
         print(json.dumps(out, sort_keys=True))
         return 0
     load = f", load {result.load}" if args.action != "pickup" else ""
+    dens = ""
+    if result.true_density is not None:
+        dens = f", density {result.true_density:g}"
+        if result.believed_density is not None:
+            dens += f" believed {result.believed_density:g}"
+        dens += " kg/m^3"
     print(f"{args.domain} {args.action}: {result.successes}/{result.trials} succeeded, "
           f"success rate {result.success_rate:.3f} (true size {true_size:g} m, "
-          f"believed {believed:g} m{load}, seed {args.seed})")
+          f"believed {believed:g} m{load}{dens}, seed {args.seed})")
     return 0

@@ -8,7 +8,7 @@ import numpy as np
 
 from .. import domains
 from ..configuration import Configuration
-from ..properties import PropertyError, block_properties
+from ..properties import MAX_DENSITY, MIN_DENSITY, PropertyError, block_properties
 from . import probes, scene, state_mapping, trajectories
 from .spec import ContainerSpec
 
@@ -17,6 +17,7 @@ class ContainerDomain:
     """Blocks, an open container and a floating gripper; L = the blocks' side lengths."""
 
     name = "container"
+    max_blocks = 16
 
     def __init__(self, spec: ContainerSpec | None = None, **overrides) -> None:
         spec = spec or ContainerSpec()
@@ -25,9 +26,15 @@ class ContainerDomain:
             if unknown:
                 raise ValueError(f"container domain: unknown option(s) {sorted(unknown)}")
             spec = dataclasses.replace(spec, **overrides)
-        if not 1 <= spec.n_blocks <= 16:
-            raise ValueError(f"n_blocks: {spec.n_blocks} is outside [1, 16]")
+        if not 1 <= spec.n_blocks <= self.max_blocks:
+            raise ValueError(f"n_blocks: {spec.n_blocks} is outside [1, {self.max_blocks}]")
+        if not MIN_DENSITY < spec.density <= MAX_DENSITY:
+            raise ValueError(f"density: {spec.density} kg/m^3 is outside ({MIN_DENSITY:g}, {MAX_DENSITY:g}]")
         self.spec = spec
+
+    # Over HTTP (api.schemas): the density is known to the agent (L is the size alone).
+    http_truth = {"density": {"type": float, "gt": MIN_DENSITY, "le": MAX_DENSITY,
+                              "description": "the blocks' density (kg/m^3), known to the agent"}}
 
     # -- data -----------------------------------------------------------------------
     @property

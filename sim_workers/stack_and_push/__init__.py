@@ -10,17 +10,19 @@ import numpy as np
 from .. import domains
 from ..configuration import Configuration
 from ..container.scene import GRIPPER_MASS
-from ..properties import PropertyError, PropertySpace, block_properties
-from . import probes, scene, state_mapping, trajectories
+from ..properties import MAX_DENSITY, MIN_DENSITY, PropertyError, PropertySpace, block_properties
+from . import efforts, probes, scene, state_mapping, trajectories
 from .spec import StackAndPushSpec
 
 MAX_BLOCKS = 8
+MIN_FORCE_SIGMA = 0.001     # N
 
 
 class StackAndPushDomain:
     """Cubes, a guide rail and a floating gripper; L = the blocks' side lengths."""
 
     name = "stack_and_push"
+    max_blocks = MAX_BLOCKS
 
     def __init__(self, spec: StackAndPushSpec | None = None, **overrides) -> None:
         spec = spec or StackAndPushSpec()
@@ -31,14 +33,22 @@ class StackAndPushDomain:
             spec = dataclasses.replace(spec, **overrides)
         if not 1 <= spec.n_blocks <= MAX_BLOCKS:
             raise ValueError(f"n_blocks: {spec.n_blocks} is outside [1, {MAX_BLOCKS}]")
+        if not MIN_DENSITY < spec.density <= MAX_DENSITY:
+            raise ValueError(f"density: {spec.density} kg/m^3 is outside ({MIN_DENSITY:g}, {MAX_DENSITY:g}]")
         if spec.force_sigma is not None and not spec.force_sigma > 0:
             raise ValueError(f"force_sigma: {spec.force_sigma} N must be positive")
+        if spec.force_sigma is not None and spec.force_sigma < MIN_FORCE_SIGMA:
+            raise ValueError(f"force_sigma: {spec.force_sigma} N is below {MIN_FORCE_SIGMA} N "
+                             "(a wrist sensor resolves about 1 mN at best)")
         if not 0 < spec.density_low < spec.density_high:
             raise ValueError(f"density_low/density_high: need 0 < {spec.density_low} < {spec.density_high}")
         if not 0 < spec.prior_low < spec.prior_high:
             raise ValueError(f"prior_low/prior_high: need 0 < {spec.prior_low} < {spec.prior_high}")
         if not spec.weigh_s > 0:
             raise ValueError(f"weigh_s: {spec.weigh_s} s must be positive")
+        for name in ("grip_safety", "push_safety", "push_accel_ref"):
+            if not getattr(spec, name) > 0:
+                raise ValueError(f"{name}: {getattr(spec, name)} must be positive")
         self.spec = spec
 
     # -- data -----------------------------------------------------------------------
@@ -90,6 +100,21 @@ class StackAndPushDomain:
             props["density"] = float(d[0]) if np.all(d == d[0]) else d
         return props
 
+    # What a task or session request may set over HTTP (api.schemas builds the domain's
+    # request model from these): each option valid on its own, whatever the others say.
+    http_options = {
+        "unknown_density": {"type": bool, "description": "L = (size, density): learn the blocks' "
+                                                         "density from the wrist force"},
+        "force_sigma": {"type": float, "ge": MIN_FORCE_SIGMA, "le": 100.0,
+                        "description": "noise of the held-weight channel (N; 0.1 an external F/T "
+                                       "sensor, 3.5 a UR5e's built-in one)"},
+        "force_from_mass": {"type": bool, "description": "size the grip force and the push's force "
+                                                         "limit from the believed mass (default: "
+                                                         "when the density is unknown)"},
+    }
+    http_truth = {"density": {"type": float, "gt": MIN_DENSITY, "le": MAX_DENSITY,
+                              "description": "the blocks' density (kg/m^3)"}}
+
     # -- physics ---------------------------------------------------------------------
     def build(self, client: int, props: dict) -> scene.SceneHandles:
         p = self.properties(props)
@@ -123,7 +148,24 @@ class StackAndPushDomain:
         return state_mapping.symbolic_state(self.spec, config)
 
     def action_pose(self, props: dict, config: Configuration, action: str) -> np.ndarray:
-        return state_mapping.action_pose(self.spec, self.properties(props)["block_sizes"], config, action)
+        """Y: the key pose (x, y, z, yaw, opening) under the believed properties, and with
+        mass in Y a sixth entry, the effort (grip force per finger, or push force limit)
+        from the believed masses."""
+        p = self.properties(props)
+        key = state_mapping.action_pose(self.spec, p["block_sizes"], config, action)
+        if not self.force_from_mass:
+            return key
+        name, args = state_mapping.parse_action(action)
+        block = state_mapping.block_index(self.spec, args[1]) if name != "push" else None
+        chain = state_mapping.block_labels(self.spec, config)[1] if name == "push" else []
+        return np.append(key, efforts.effort(self.spec, p["block_masses"], name, block, chain))
+
+    @property
+    def force_from_mass(self) -> bool:
+        """Whether Y sizes the grip and the push from the believed mass: as set, else
+        exactly when the density is unknown."""
+        fm = self.spec.force_from_mass
+        return bool(self.spec.unknown_density if fm is None else fm)
 
     def action_trajectory(self, config: Configuration, action: str, key: np.ndarray,
                           transit: np.ndarray | None = None) -> np.ndarray:
@@ -172,13 +214,24 @@ class StackAndPushDomain:
         held-weight channel then reads NaN (not measured)."""
         return self.force_sigma is not None
 
+    def senses(self, action: str) -> bool:
+        """Whether an action's sensor log is read: pickups only (the held weight and the
+        grasp width); logging a stack or a push would cost 4-14 % of its steps for nothing
+        (benchmarks/bench_mass_in_y.py)."""
+        return action.replace(" ", "").startswith("pickup(")
+
     def measurements(self, config: Configuration, log=None, action: str = "") -> np.ndarray:
         """The finger opening, planar block positions (x, y per block; no heights: a depth
         reading of a block would give its size away), then the held weight (N): the mean
         vertical wrist force over the lift's last ``weigh_s`` of a pickup, less the empty
-        gripper's weight (NaN after any other action, or without a sensor log)."""
+        gripper's weight (NaN after any other action, or without a sensor log), and the
+        grasp width (m): the finger opening at the end of a pickup's grip, before the
+        lift (what the hand closed on; NaN likewise). Without the grasp width a block
+        that slipped out on the lift (too heavy for the grip) and one the fingers missed
+        (too small) look alike, and the filter learned "small" from a slip (measured:
+        every particle at the prior's 30 mm floor, truth 45 mm)."""
         return np.concatenate([[config.robot[4]], config.objects[:, :2].ravel(),
-                               [held_weight(self.spec, log, action)]])
+                               [held_weight(self.spec, log, action), grasp_width(log, action)]])
 
     def measurement_channels(self) -> list[dict]:
         """Every channel: name, index, unit and sigma (None: reported, not weighed)."""
@@ -186,7 +239,9 @@ class StackAndPushDomain:
         return ([{"name": "finger_opening", "index": 0, "unit": "m", "sigma": 0.002}]
                 + [{"name": f"{b}_{ax}", "index": 1 + 2 * i + k, "unit": "m", "sigma": None}
                    for i, b in enumerate(self.block_names) for k, ax in enumerate("xy")]
-                + [{"name": "held_weight", "index": 1 + 2 * n, "unit": "N", "sigma": self.force_sigma}])
+                + [{"name": "held_weight", "index": 1 + 2 * n, "unit": "N", "sigma": self.force_sigma},
+                   {"name": "grasp_width", "index": 2 + 2 * n, "unit": "m",
+                    "sigma": 0.002 if self.logs_sensors else None}])
 
     @property
     def force_sigma(self) -> float | None:
@@ -209,9 +264,9 @@ class StackAndPushDomain:
     probe_actions = probes.PROBE_ACTIONS
 
     def probe_trial(self, action: str, true_size: float, believed_size: float, load_k: int,
-                    rng: np.random.Generator) -> bool:
+                    rng: np.random.Generator, believed_density: float | None = None) -> bool:
         """One seeded trial of `action` in this (already jittered) world."""
-        return probes.probe_trial(self, action, true_size, believed_size, load_k, rng)
+        return probes.probe_trial(self, action, true_size, believed_size, load_k, rng, believed_density)
 
     def probe_loads(self, action: str) -> range:
         """Tower heights a probe of `action` accepts (``sim_workers.probe.probe`` checks
@@ -268,6 +323,25 @@ def held_weight(spec: StackAndPushSpec, log, action: str) -> float:
     if not sel.any():
         return float("nan")
     return float(np.mean(log.wrist_force[sel, 2])) - GRIPPER_MASS * GRAVITY
+
+
+GRASP_S = 0.1     # s: the grasp width is the mean opening over the grip's last 0.1 s
+
+
+def grasp_width(log, action: str) -> float:
+    """The finger opening at the end of a pickup's grip (m): the mean over the last
+    ``GRASP_S`` of the steps commanded closed at the lowest height, before the lift. NaN
+    when there is nothing to read."""
+    if log is None or log.commanded is None or not action.replace(" ", "").startswith("pickup("):
+        return float("nan")
+    z, opening = log.commanded[:, 2], log.commanded[:, 4]
+    gripping = (opening <= 1e-9) & (z <= z.min() + 1e-6)
+    if not gripping.any():
+        return float("nan")
+    t = log.times[gripping]
+    last = gripping.copy()
+    last[gripping] = t > t[-1] - GRASP_S
+    return float(np.mean(log.opening[last]))
 
 
 def _half_heights(objects: np.ndarray, rows: list[int]) -> dict[int, float]:

@@ -48,9 +48,11 @@ def tower_configuration(domain, sizes: np.ndarray, load_k: int, rng: np.random.G
 
 
 def probe_trial(domain, action: str, true_size: float, believed_size: float, load_k: int,
-                rng: np.random.Generator) -> bool:
+                rng: np.random.Generator, believed_density: float | None = None) -> bool:
     """pickup: one random block from the supply row; stack: one more block onto a tower of
-    `load_k`; push: a tower of `load_k` to the goal; stand: a tower of `load_k` left alone."""
+    `load_k`; push: a tower of `load_k` to the goal; stand: a tower of `load_k` left alone.
+    The truth's density is the domain's (option ``density``); Y believes
+    `believed_density` (default: the truth's), which matters when mass is in Y."""
     n = domain.spec.n_blocks
     if action == "stack" and not 0 <= load_k < n:
         raise ValueError(f"load: stack onto a tower of {load_k} needs a free block (0..{n - 1})")
@@ -58,7 +60,8 @@ def probe_trial(domain, action: str, true_size: float, believed_size: float, loa
         raise ValueError(f"load: a tower of {load_k} is outside 1..{n}")
     sizes = np.full(n, true_size)
     truth = {"block_sizes": sizes}
-    believed = {"block_sizes": np.full(n, believed_size)}
+    believed = {"block_sizes": np.full(n, believed_size),
+                "density": domain.spec.density if believed_density is None else float(believed_density)}
     with GroundedWorld(domain) as world:
         if action == "pickup":
             config = domain.initial_configuration(truth)

@@ -26,6 +26,13 @@ class StackAndPushSpec:
     # is unknown (then 0.1 N, an external wrist F/T sensor; a UR5e's built-in one is ~3.5 N).
     force_sigma: float | None = None
     weigh_s: float = 0.25           # the held weight is the mean over the lift's last 0.25 s
+    # Mass in Y (issue 14): the grip force and the push's force limit come from the
+    # believed mass (sim_workers/stack_and_push/efforts.py). None: on exactly when the
+    # density is unknown, so runs with a known density keep their calibrated physics.
+    force_from_mass: bool | None = None
+    grip_safety: float = 2.5        # grip = safety x (believed weight) / (2 mu_finger-block)
+    push_safety: float = 1.25       # push limit = gripper inertia + safety x tower (a + mu g)
+    push_accel_ref: float = 8.0     # m/s^2, the force-limited stroke's reference speed-up
     # Supply row beside the rail (y < 0), one slot per block along x.
     init_row_x: float = -0.10
     init_row_y: float = -0.14

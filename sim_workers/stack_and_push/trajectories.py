@@ -9,6 +9,7 @@ import numpy as np
 
 from .. import trajectory as tr
 from ..configuration import Configuration
+from .efforts import add_efforts
 from .spec import StackAndPushSpec
 from .state_mapping import parse_action, push_end_x, tower_top
 
@@ -29,8 +30,8 @@ def default_transit(spec: StackAndPushSpec, start: np.ndarray, pre: np.ndarray) 
 def pre_pose(spec: StackAndPushSpec, action: str, key: np.ndarray, holding: bool) -> np.ndarray:
     """The pose above the key pose where the transit ends and the approach starts."""
     name, _ = parse_action(action)
-    pre = key.copy()
-    pre[2] = key[2] + (0.12 if name == "push" else spec.approach_height)
+    pre = np.asarray(key, dtype=np.float64)[:5].copy()    # a pose: Y's effort entry is not one
+    pre[2] = pre[2] + (0.12 if name == "push" else spec.approach_height)
     if name in ("stack", "push") or holding:
         pre[4] = CLOSED
     return pre
@@ -67,7 +68,8 @@ def push_stroke(start: np.ndarray, end: np.ndarray, speed: float, accel: float, 
 
 def action_trajectory(spec: StackAndPushSpec, config: Configuration, action: str, key: np.ndarray,
                       transit: np.ndarray | None = None) -> np.ndarray:
-    """The whole timed trajectory (t, x, y, z, yaw, opening) of one action.
+    """The whole timed trajectory (t, x, y, z, yaw, opening) of one action; with a sixth
+    key entry (Y's effort, when mass is in Y) also (grip_force, force_limit).
 
     `transit` is the (M, 4 or 5) collision-free path to the pre-pose (the motion planner's);
     without one the default up-across-down path is used."""
@@ -84,6 +86,8 @@ def _action_trajectory(spec: StackAndPushSpec, config: Configuration, action: st
                        transit: np.ndarray | None) -> tuple[np.ndarray, float]:
     name, _ = parse_action(action)
     key = np.asarray(key, dtype=np.float64)
+    effort = float(key[5]) if len(key) > 5 else None
+    key = key[:5]
     start = config.robot.copy()
     holding = name == "stack"
     if holding:
@@ -105,7 +109,7 @@ def _action_trajectory(spec: StackAndPushSpec, config: Configuration, action: st
         grip = tr.time_parameterize(np.array([key, closed]), 1.0, finger_speed=0.15)
         grip = np.vstack([grip, [grip[-1, 0] + 0.3, *closed]])  # dwell: let the grip settle
         lift = tr.time_parameterize(np.array([closed, lifted]), spec.lift_speed)
-        return tr.concatenate(move, tail, grip, lift), t_pre
+        return _efforts(spec, tr.concatenate(move, tail, grip, lift), name, effort), t_pre
     if name == "stack":
         down = key.copy(); down[4] = CLOSED
         # Leave straight up, above the new top plus a carried block of any prior size.
@@ -114,12 +118,21 @@ def _action_trajectory(spec: StackAndPushSpec, config: Configuration, action: st
         release = tr.time_parameterize(np.array([down, key]), 1.0, finger_speed=0.15)
         release = np.vstack([release, [release[-1, 0] + 0.3, *key]])  # let the block settle
         leave = tr.time_parameterize(np.array([key, up]), spec.lift_speed)
-        return tr.concatenate(move, tail, release, leave), t_pre
+        return _efforts(spec, tr.concatenate(move, tail, release, leave), name, effort), t_pre
     # push: descend behind the tower, stroke to the goal, back off and rise past its top.
     end = key.copy(); end[0] = push_end_x(spec, config, action, key)
     back = end.copy(); back[0] -= 0.03
     up = back.copy(); up[2] = max(spec.carry_height, tower_top(spec, config) + spec.carry_margin)
     descend = tr.time_parameterize(np.array([pre, key]), 2 * spec.approach_speed)
-    stroke = push_stroke(key, end, spec.push_speed, spec.push_accel, spec.push_decel)
+    # Force-limited (mass in Y): the reference speeds up fast and the limit sets the pace.
+    accel = spec.push_accel if effort is None else spec.push_accel_ref
+    stroke = push_stroke(key, end, spec.push_speed, accel, spec.push_decel)
     retreat = tr.time_parameterize(np.array([end, back, up]), spec.lift_speed)
-    return tr.concatenate(move, descend, stroke, retreat), t_pre
+    traj = tr.concatenate(move, descend, stroke, retreat)
+    limited = (t_pre, t_pre + float(descend[-1, 0]) + float(stroke[-1, 0]))
+    return _efforts(spec, traj, name, effort, limited), t_pre
+
+
+def _efforts(spec: StackAndPushSpec, traj: np.ndarray, name: str, effort: float | None,
+             limited: tuple[float, float] | None = None) -> np.ndarray:
+    return traj if effort is None else add_efforts(spec, traj, name, effort, limited)

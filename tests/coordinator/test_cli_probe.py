@@ -83,3 +83,27 @@ def test_help_lists_the_flags(capsys):
     out = capsys.readouterr().out
     for flag in ("--domain", "--action", "--true-size", "--believed-size", "--load", "--trials", "--seed", "--json"):
         assert flag in out
+
+
+def test_believed_density_shows_what_a_light_grip_costs(capsys):
+    """Mass in Y through the CLI: 45 mm blocks of 2400 kg/m^3 gripped for 1000 kg/m^3 slip
+    out; gripped for the truth they hold. The JSON names both densities."""
+    sp = ["probe", "--domain", "stack_and_push", "--true-size", "0.045", "--action", "pickup",
+          "--true-density", "2400", "--trials", "3", "--json"]
+    assert main(sp + ["--believed-density", "1000"]) == 0
+    light = json.loads(capsys.readouterr().out)
+    assert main(sp + ["--believed-density", "2400"]) == 0
+    right = json.loads(capsys.readouterr().out)
+    assert light["successes"] == 0 and right["successes"] == 3
+    assert light["true_density"] == 2400.0 and light["believed_density"] == 1000.0
+
+
+@pytest.mark.parametrize("extra, message", [
+    (["--domain", "container", "--believed-density", "1000"], "--believed-density: mass does not enter Y"),
+    (["--domain", "stack_and_push", "--believed-density", "-5"], "--believed-density: -5.0 kg/m^3 is outside"),
+    (["--domain", "stack_and_push", "--true-density", "nan"], "--true-density: nan is not a finite number"),
+])
+def test_bad_densities_exit_2_naming_the_flag(extra, message, capsys):
+    code = main(["probe", "--true-size", "0.045", "--action", "pickup", "--trials", "1", *extra])
+    err = capsys.readouterr().err
+    assert code == 2 and message in err and "Traceback" not in err

@@ -30,7 +30,8 @@ UNKNOWN = {"unknown_density": True}
     ({"options": {"force_sigma": -1.0}}, "options.force_sigma: -1.0 N must be positive"),
     ({"options": {"n_blocks": 4}}, "options.n_blocks: set n_blocks"),
     ({"options": {"true_size": 0.04}}, "options.true_size: set truth.size"),
-    ({"truth": {"density": 2400.0}}, "truth.density: not a property of L"),
+    ({"truth": {"density": 2400.0}, "options": {"density": 700.0}}, "truth.density: 2400.0 disagrees with options.density"),
+    ({"truth": {"density": -5.0}}, r"truth.density: -5.0 kg/m\^3 is outside"),
     ({"truth": {"mass": 1.0}, "options": UNKNOWN}, "truth.mass: not a property of L"),
     ({"truth": {"density": 30000.0}, "options": UNKNOWN}, "truth.density: 30000.0 is outside"),
     ({"truth": {"size": 0.04}, "true_size": 0.05}, "truth.size: 0.04 disagrees with true_size 0.05"),
@@ -40,12 +41,23 @@ def test_truth_and_options_are_refused_by_name(kwargs, match):
         RunConfig(domain="stack_and_push", **kwargs)
 
 
+def test_a_truth_that_L_does_not_hold_is_known_to_the_agent():
+    """The density without unknown_density is not hidden: it becomes the option the
+    world and Y both use (not dropped, not refused)."""
+    cfg = RunConfig(domain="stack_and_push", truth={"density": 2400.0})
+    assert cfg.truth == {} and cfg.options == {"density": 2400.0}
+    s = Session(cfg)
+    assert s.dims == 1 and s.domain.spec.density == 2400.0
+
+
 def test_truth_and_options_reach_the_session_and_reality():
     cfg = RunConfig(domain="stack_and_push", truth=HEAVY, options={**UNKNOWN, "force_sigma": 3.5})
     assert cfg.true_size == 0.040 and cfg.truth_values() == {"size": 0.040, "density": 2400.0}
     s = Session(cfg)
     assert s.dims == 2 and list(s.low) == [0.030, 300.0] and list(s.high) == [0.060, 3000.0]
-    assert s.domain.measurement_model()[1][-1] == 3.5
+    idx, sigma = s.domain.measurement_model()
+    weight = [c["index"] for c in s.domain.measurement_channels() if c["name"] == "held_weight"][0]
+    assert sigma[list(idx).index(weight)] == 3.5
     assert list(s.truth_row()) == [0.040, 2400.0]
     from coordinator.runner import reality_for
 
@@ -93,7 +105,7 @@ def test_mode_scale_puts_each_property_in_its_own_units():
     (["--option", "foo=1"], "--option: options.foo: not an option"),
     (["--option", "unknown_density"], "--option unknown_density: expected KEY=VALUE"),
     (["--truth", "density=heavy"], "--truth density=heavy: 'heavy' is not a number"),
-    (["--truth", "density=2400"], "--truth: truth.density: not a property of L"),
+    (["--truth", "mass=2"], "--truth: truth.mass: not a property of L"),
 ])
 def test_cli_refuses_bad_truth_and_options_with_exit_2(args, message, capsys, tmp_path):
     assert main(["run", "--domain", "stack_and_push", "--out", str(tmp_path), *args]) == 2
@@ -160,7 +172,8 @@ def test_a_coarse_sensor_leaves_the_density_posterior_wider():
     stds = {}
     for sigma in (0.1, 3.5):
         b = Belief(belief.particles, belief.log_weights, belief.low, belief.high)
-        b.update(gaussian_log_likelihood(real.measurements[[0, -1]], sim["measurements"][:, [0, -1]],
+        # The finger opening and the held weight (index -2; the grasp width is last).
+        b.update(gaussian_log_likelihood(real.measurements[[0, -2]], sim["measurements"][:, [0, -2]],
                                          np.array([0.002, sigma])))
         stds[sigma] = float(b.std()[1])
         if sigma == 0.1:
@@ -168,3 +181,26 @@ def test_a_coarse_sensor_leaves_the_density_posterior_wider():
     prior_std = 2700.0 / np.sqrt(12.0)               # 779 kg/m^3
     assert stds[0.1] < 0.45 * prior_std, stds         # measured 256: one pickup, ~6 % of a 1.5 N weight
     assert stds[3.5] > 0.8 * prior_std, stds          # measured 838: the sensor says almost nothing
+
+
+# -- where mass changes outcomes -----------------------------------------------------------
+def _heavy_run(agent: str, particles: int) -> dict:
+    cfg = RunConfig(domain="stack_and_push", agent=agent, particles=particles, episodes=3, seed=0,
+                    max_steps=40, true_size=0.045, truth={"density": 2400.0},
+                    options={**UNKNOWN, "force_sigma": 0.1})
+    return run(cfg, pool=ShardPool(cfg.domain, {"n_blocks": 8, **cfg.options}, n_shards=0))
+
+
+def test_learning_the_density_beats_the_prior_mean_mass_on_heavy_blocks():
+    """Heavy blocks (2400 kg/m^3) of the prior-mean size: TMP-RL grips and pushes for the
+    prior-mean mass (1650) and keeps failing stacks on the carry and pushes; TMOC learns
+    the density from the wrist force and the slips, and earns more over three episodes,
+    ending at the best an episode can earn. (`tmoc experiment weights` at full scale.)"""
+    tmoc, rl = _heavy_run("tmoc", 16), _heavy_run("tmp_rl", 1)
+    u_tmoc = [e["utility"] for e in tmoc["episodes"]]
+    u_rl = [e["utility"] for e in rl["episodes"]]
+    assert sum(u_tmoc) > sum(u_rl) + 500, (u_tmoc, u_rl)
+    assert u_tmoc[-1] >= u_rl[-1] and u_tmoc[-1] >= 110, (u_tmoc, u_rl)
+    post = tmoc["summary"]["posterior"]["density"]
+    assert abs(post["mean"] - 2400.0) < 0.2 * 2400.0, post
+    assert rl["summary"]["posterior"]["density"]["mean"] == 1650.0

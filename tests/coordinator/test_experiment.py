@@ -107,6 +107,12 @@ def tiny_out(ray_cluster, tmp_path_factory):
     """Every experiment at a tiny scale into one DIR (they share the cached T*)."""
     out = tmp_path_factory.mktemp("experiments")
     for name in ex.EXPERIMENTS:
+        if name == "weights":    # another domain and T*: its own DIR (the cache holds one T*)
+            own = out / "weights-dir"
+            assert main(["experiment", name, *TINY, "--seed", "3", "--out", str(own)]) == 0
+            for ext in ("json", "csv", "md", "png"):
+                shutil.copy(own / f"weights.{ext}", out / f"weights.{ext}")
+            continue
         assert main(["experiment", name, *TINY, "--seed", "3", "--out", str(out)]) == 0
     return out
 
@@ -116,13 +122,14 @@ def test_every_experiment_writes_png_csv_json(tiny_out, name):
     summary = json.loads((tiny_out / f"{name}.json").read_text())
     settings = summary["settings"]
     n_settings = {"compare": 4, "particles": 4, "milestones": 1, "sizes": 2, "likelihood": 2,
-                  "robot": 2}[name]
+                  "robot": 2, "weights": 4}[name]
     assert len(settings) == n_settings
     for s in settings.values():
         assert set(s) >= SUMMARY_KEYS
         assert s["final_posterior_error"] >= 0 and 0 <= s["successful_actions_pct_last_fifth"] <= 100
     rows = _csv(tiny_out / f"{name}.csv")
-    assert tuple(rows[0]) == ex.CSV_COLUMNS
+    extra = ("density_mean", "density_std", "density_error") if name == "weights" else ()
+    assert tuple(rows[0]) == ex.CSV_COLUMNS + extra
     assert len(rows) == 2 * n_settings * 2                # runs x settings x episodes
     assert {(r["setting"], r["run"], r["episode"]) for r in rows} == \
         {(label, str(r), str(e)) for label in settings for r in range(2) for e in (1, 2)}
@@ -133,7 +140,7 @@ def test_every_experiment_writes_png_csv_json(tiny_out, name):
     assert table == ex.summary_table(summary)
     assert table.count("\n| ") == n_settings + 1 + (len(summary.get("milestones", [])) + 1
                                                      if name == "milestones" else 0) \
-        + (n_settings + 1 if name == "robot" else 0)
+        + (n_settings + 1 if name in ("robot", "weights") else 0)
     png = (tiny_out / f"{name}.png").read_bytes()
     assert png[:8] == b"\x89PNG\r\n\x1a\n" and len(png) > 10_000
     if name == "compare":
@@ -148,6 +155,17 @@ def test_every_experiment_writes_png_csv_json(tiny_out, name):
         assert [list(r["episodes"]) for r in summary["table_ii"]] == [["0"], ["0"]]
         given = {r["setting"]: r for r in rows}["sizes given"]
         assert abs(float(given["size_mean"]) - summary["spec"]["true_size"]) < 1e-12
+    if name == "weights":   # density learned (0.1 N, 3.5 N), known, and TMP-RL's prior mean
+        assert list(settings) == ["density learned, 0.1 N", "density learned, 3.5 N", "density known",
+                                  "TMP-RL (prior-mean mass)"]
+        assert summary["spec"]["domain"] == "stack_and_push" and summary["spec"]["true_size"] == 0.045
+        known, rl = settings["density known"], settings["TMP-RL (prior-mean mass)"]
+        assert not known["density_in_L"] and known["final_density_error"] is None
+        assert rl["final_density_error"] == pytest.approx(750.0) and rl["final_density_std"] == 0.0
+        learned = settings["density learned, 0.1 N"]
+        assert learned["density_in_L"] and 0 <= learned["final_density_error"] <= 2700
+        assert all(r["density_mean"] == "" for r in rows if r["setting"] == "density known")
+        assert all(float(r["density_mean"]) == 1650.0 for r in rows if r["setting"].startswith("TMP-RL"))
     if name == "sizes":                                   # T* is for equal blocks only
         assert {r["optimal_plan"] for r in rows if r["setting"] != "equal"} == {""}
 

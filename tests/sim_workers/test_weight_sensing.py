@@ -15,6 +15,7 @@ from sim_workers.properties import PropertyError
 from sim_workers.stack_and_push import StackAndPushDomain
 
 G = 9.81
+WEIGHT = -2          # the held-weight channel (the grasp width is last)
 
 
 def _pickup(domain, size: float, density: float):
@@ -33,14 +34,14 @@ def test_held_weight_reads_the_blocks_weight_within_20_mN(size, density):
     domain = StackAndPushDomain(unknown_density=True)
     out, _ = _pickup(domain, size, density)
     assert "is_holding(r,b1)" in out.state
-    weight = out.measurements[-1]
+    weight = out.measurements[WEIGHT]
     assert weight == pytest.approx(density * size ** 3 * G, abs=0.02)
 
 
 def test_held_weight_is_nan_after_any_other_action_and_at_rest():
     domain = StackAndPushDomain(unknown_density=True)
     out, config = _pickup(domain, 0.045, 700.0)
-    assert np.isnan(domain.measurements(config)[-1])      # no sensor log: not measured
+    assert np.isnan(domain.measurements(config)[WEIGHT])      # no sensor log: not measured
     props = {"block_sizes": np.full(8, 0.045), "density": 700.0}
     with GroundedWorld(domain) as world:
         held = world.reset(out.configuration, props, place=False)
@@ -49,19 +50,20 @@ def test_held_weight_is_nan_after_any_other_action_and_at_rest():
         after = world.execute(domain.action_trajectory(held, action, key), action,
                               start_time=domain.transit_end_time(held, action, key))
     assert "on(b1,start)" in after.state
-    assert np.isnan(after.measurements[-1])
+    assert np.isnan(after.measurements[WEIGHT]) and np.isnan(after.measurements[-1])
 
 
 def test_sensing_does_not_touch_the_physics():
     """Reading the constraint force every step is read-only: the outcome is bit-identical
     to the same action with the log switched off."""
-    logged, _ = _pickup(StackAndPushDomain(unknown_density=True), 0.045, 1500.0)
+    # (Mass in Y off: it changes the grip, which is physics; the log alone must not.)
+    logged, _ = _pickup(StackAndPushDomain(unknown_density=True, force_from_mass=False), 0.045, 1500.0)
     quiet_domain = StackAndPushDomain()          # density known: no sensor log
     assert not quiet_domain.logs_sensors and StackAndPushDomain(unknown_density=True).logs_sensors
     quiet, _ = _pickup(quiet_domain, 0.045, 1500.0)
     assert np.array_equal(logged.configuration.to_array(), quiet.configuration.to_array())
     assert logged.steps == quiet.steps
-    assert np.isnan(quiet.measurements[-1]) and not np.isnan(logged.measurements[-1])
+    assert np.isnan(quiet.measurements[WEIGHT]) and not np.isnan(logged.measurements[WEIGHT])
 
 
 def test_gripper_tare_is_the_empty_hands_weight():
@@ -77,7 +79,7 @@ def test_gripper_tare_is_the_empty_hands_weight():
         out = world.execute(domain.action_trajectory(config, action, key), action,
                             start_time=domain.transit_end_time(config, action, key))
     assert "is_holding(r,b1)" not in out.state
-    assert abs(out.measurements[-1]) < 0.05
+    assert abs(out.measurements[WEIGHT]) < 0.05
     assert GRIPPER_MASS == pytest.approx(0.6)
 
 
@@ -109,10 +111,10 @@ def test_channels_and_what_is_weighed():
     assert list(idx) == [0] and list(sigma) == [0.002]        # as before issue 14
     unknown = StackAndPushDomain(unknown_density=True)
     idx, sigma = unknown.measurement_model()
-    assert list(idx) == [0, 17] and list(sigma) == [0.002, 0.1]
+    assert list(idx) == [0, 17, 18] and list(sigma) == [0.002, 0.1, 0.002]
     assert StackAndPushDomain(unknown_density=True, force_sigma=3.5).measurement_model()[1][1] == 3.5
     chans = unknown.measurement_channels()
-    assert [c["name"] for c in chans][-1] == "held_weight" and chans[-1]["unit"] == "N"
+    assert [c["name"] for c in chans][-2:] == ["held_weight", "grasp_width"] and chans[-2]["unit"] == "N"
     assert len(chans) == len(unknown.measurements(unknown.initial_configuration(unknown.true_properties())))
     with pytest.raises(ValueError, match="force_sigma"):
         StackAndPushDomain(force_sigma=0.0)
