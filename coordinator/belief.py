@@ -57,14 +57,15 @@ def _normalised(log_w: np.ndarray) -> np.ndarray:
     return log_w - logsumexp(log_w)
 
 
-def systematic_resample(weights: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-    """Ancestor indices (N,), sorted, by systematic resampling with one uniform draw.
+def systematic_resample(weights: np.ndarray, rng: np.random.Generator, n: int | None = None) -> np.ndarray:
+    """Ancestor indices (n,), sorted, by systematic resampling with one uniform draw
+    (n defaults to the number of weights).
 
-    Particle i is drawn floor(N w_i) or ceil(N w_i) times: the N points u0 + k/N hit an
+    Particle i is drawn floor(n w_i) or ceil(n w_i) times: the n points u0 + k/n hit an
     interval of length w_i of the cumulative sum that many times.
     """
     w = np.asarray(weights, dtype=np.float64)
-    n = w.shape[0]
+    n = w.shape[0] if n is None else int(n)
     cum = np.cumsum(w / w.sum())
     cum[-1] = 1.0  # rounding in cumsum must not leave the last point without a bin
     positions = (rng.random() + np.arange(n)) / n
@@ -272,6 +273,25 @@ class Belief:
             new[dead] = copies
         self.particles = new
         self.log_weights = np.full(self.n, -math.log(self.n))
+
+    def resample_to(self, n: int, rng: np.random.Generator, *, jitter: float = 0.1,
+                    jitter_floor: float = 0.005) -> None:
+        """Systematic resampling to `n` particles (the adaptive budget's step); every copy
+        after an ancestor's first is jittered as in `resample`; weights become uniform."""
+        n = int(n)
+        if n < 1:
+            raise ValueError(f"n: need at least one particle, got {n}")
+        sigma = np.maximum(jitter * self.std(), jitter_floor * (self.high - self.low))
+        ancestors = systematic_resample(self.weights, rng, n)
+        first = np.ones(n, dtype=bool)
+        first[1:] = ancestors[1:] != ancestors[:-1]          # sorted: repeats are copies
+        new = self.particles[ancestors].copy()
+        copies = ~first
+        if copies.any() and np.any(sigma > 0):
+            new[copies] = _reflect_into(new[copies] + sigma * rng.standard_normal((int(copies.sum()), self.dim)),
+                                        self.low, self.high)
+        self.particles = new
+        self.log_weights = np.full(n, -math.log(n))
 
     # ----------------------------------------------------------------- checkpoints
     def to_dict(self) -> dict:

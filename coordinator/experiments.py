@@ -89,7 +89,7 @@ CONVERGENCE_BAND = 0.05                           # "within 5 % of the final lev
 
 CSV_COLUMNS = ("setting", "run", "episode", "seed", "agent", "particles", "utility", "actions",
                "failures", "delivered", "size_mean", "size_std", "size_error", "loads", "plan_loads",
-               "optimal_plan", "success_rate")
+               "optimal_plan", "success_rate", "particle_actions")
 
 
 # --------------------------------------------------------------------------- settings
@@ -118,6 +118,8 @@ class Spec:
     scale: str = "default"
     settings: list[Setting] = field(default_factory=list)
     domain: str = "container"
+    particle_budget: str = "fixed"
+    min_particles: int = 8
 
     def to_dict(self) -> dict:
         out = {"name": self.name, "runs": self.runs, "episodes": self.episodes,
@@ -127,6 +129,8 @@ class Spec:
                "scale": self.scale}
         if self.domain != "container":     # the committed container summaries stay valid
             out["domain"] = self.domain
+        if self.particle_budget != "fixed":
+            out["particle_budget"], out["min_particles"] = self.particle_budget, self.min_particles
         return out
 
 
@@ -184,7 +188,8 @@ def run_config(spec: Spec, k: int, r: int) -> RunConfig:
     s = spec.settings[k]
     fields = {"domain": spec.domain, "particles": spec.particles, "episodes": spec.episodes,
               "max_steps": spec.max_steps, "true_size": spec.true_size,
-              "seed": run_seed(spec.seed, EXPERIMENTS.index(spec.name), k, r)}
+              "seed": run_seed(spec.seed, EXPERIMENTS.index(spec.name), k, r),
+              "particle_budget": spec.particle_budget, "min_particles": spec.min_particles}
     fields.update(s.overrides)
     if fields["agent"] in ("tmp_rl", "toep"):
         fields["particles"] = 1          # they keep no particles; 1 keeps the config honest
@@ -595,6 +600,7 @@ def _rows(spec: Spec, out: Path, optimal: Optimality) -> tuple[list[dict], dict]
                     "plan_loads": "+".join(str(x) for x in plan_loads),
                     "optimal_plan": "" if is_opt is None else int(is_opt),
                     "success_rate": "" if rate is None else rate,
+                    "particle_actions": e.get("particle_actions", ""),
                 })
                 dens = (e["posterior"].get("properties") or {}).get("density")
                 if spec.name == "weights":

@@ -22,6 +22,7 @@ from .agents import agent as agent_spec
 from .belief import Belief, gaussian_log_likelihood, mode_mask, symbolic_log_likelihood
 from .domains import load as load_domain, property_space
 from .experience import ExperiencePool
+from .particle_budget import next_count
 from .reality import Observation
 from .run_config import RunConfig
 from .transition_model import TransitionModel
@@ -57,6 +58,7 @@ class EpisodeStats:
     planning_s: float = 0.0
     real_s: float = 0.0
     transit_fallbacks: list = field(default_factory=list)
+    particle_counts: list = field(default_factory=list)   # particle worlds per action
 
 
 class Session:
@@ -301,7 +303,24 @@ class Session:
                                           self.belief.weights)
         resampled = self.belief.maybe_resample(self.rng, jitter=self.config.jitter,
                                                jitter_floor=self.config.jitter_floor)
-        return {"ess": float(self.belief.ess()), "resampled": bool(resampled)}
+        self.stats.particle_counts.append(len(sizes))
+        report = {"ess": float(self.belief.ess()), "resampled": bool(resampled), "particles": len(sizes)}
+        # (A point belief at the truth, known_properties, is not a posterior to size.)
+        if self.config.particle_budget == "kld" and not self.config.known_properties:
+            n = self._kld_count()
+            if n != self.belief.n:
+                self.belief.resample_to(n, self.rng, jitter=self.config.jitter,
+                                        jitter_floor=self.config.jitter_floor)
+                report["resampled"] = True
+            report["next_particles"] = n
+        return report
+
+    def _kld_count(self) -> int:
+        """The next action's particle count (KLD-sampling over the current posterior)."""
+        c = self.config
+        return next_count(self.belief.particles, self.belief.weights, self.belief.low, self.belief.high,
+                          n_min=c.min_particles, n_max=c.particles, bin_fraction=c.kld_bin,
+                          epsilon=c.kld_epsilon, quantile=c.kld_quantile)
 
     def _symbolic_loglik(self, step: PendingStep, observed: frozenset[str], predicted: list) -> np.ndarray:
         """p(s' | s_i'), a match model with a small error rate.
@@ -359,6 +378,8 @@ class Session:
             "plans": s.plans, "posterior": self.posterior(),
             "ess": float(self.belief.ess()) if self.belief is not None else None,
             "wall_s": s.wall_s, "physics_s": s.physics_s, "planning_s": s.planning_s,
+            # particle worlds per action (the adaptive budget's choice; constant when fixed)
+            "particle_actions": int(sum(s.particle_counts)), "particles_per_action": list(s.particle_counts),
         }
         self.episodes.append(record)
         self.episode += 1

@@ -39,6 +39,10 @@ def register(sub) -> None:
     p.add_argument("--particles", type=int, default=None,
                    help="particles N (`particles`: the largest N; the settings are N/4, N/2, 3N/4, N)")
     p.add_argument("--seed", type=int, default=0, help="experiment seed S (run seeds derive from it)")
+    p.add_argument("--particle-budget", default="fixed", choices=("fixed", "kld"),
+                   help="fixed: N particles every action; kld: as many as the posterior's spread "
+                        "needs, from --min-particles up to N")
+    p.add_argument("--min-particles", type=int, default=8, help="the kld budget's floor")
     p.add_argument("--scale", default="default", help="default | paper")
     p.add_argument("--max-steps", type=int, default=60, help="action limit per episode")
     p.add_argument("--true-size", type=float, default=None,
@@ -106,7 +110,9 @@ def spec_from_args(args):
     spec = ex.Spec(name=args.name, runs=runs, episodes=episodes, particles=particles, seed=args.seed,
                    max_steps=args.max_steps, true_size=args.true_size, milestones=milestones,
                    probe_trials=args.probe_trials, probe_seed=args.probe_seed, scale=args.scale,
-                   settings=ex.settings_for(args.name, particles), domain=args.domain)
+                   settings=ex.settings_for(args.name, particles), domain=args.domain,
+                   particle_budget=args.particle_budget,
+                   min_particles=_int_at_least(args.min_particles, "--min-particles", 1))
     try:       # every run's config must validate before anything starts
         for k in range(len(spec.settings)):
             ex.run_config(spec, k, 0)

@@ -17,7 +17,8 @@ _FLAG_FIELDS = {"domain": "--domain", "agent": "--agent", "particles": "--partic
                 "episodes": "--episodes", "seed": "--seed", "true_size": "--true-size",
                 "sizes_variation": "--sizes-variation", "likelihood": "--likelihood",
                 "max_steps": "--max-steps", "shards": "--shards", "truth": "--truth",
-                "options": "--option"}
+                "options": "--option", "particle_budget": "--particle-budget",
+                "min_particles": "--min-particles"}
 
 
 def register(sub) -> None:
@@ -34,7 +35,13 @@ def register(sub) -> None:
                    help="print the resulting settings as JSON and exit (a --config FILE to start from)")
     p.add_argument("--domain", default=None, help=f"registered domain (default {d.domain})")
     p.add_argument("--agent", default=None, help=f"tmoc | tmp_rl | gp | toep (default {d.agent})")
-    p.add_argument("--particles", type=int, default=None, help=f"(default {d.particles})")
+    p.add_argument("--particles", type=int, default=None,
+                   help=f"particles (with --particle-budget kld: the most) (default {d.particles})")
+    p.add_argument("--particle-budget", default=None, metavar="fixed|kld",
+                   help=f"fixed: --particles for every action; kld: as many as the posterior's "
+                        f"spread needs (KLD-sampling), from --min-particles up (default {d.particle_budget})")
+    p.add_argument("--min-particles", type=int, default=None,
+                   help=f"the kld budget's floor (at most --particles) (default {d.min_particles})")
     p.add_argument("--episodes", type=int, default=None, help=f"(default {d.episodes})")
     p.add_argument("--seed", type=int, default=None, help=f"(default {d.seed})")
     p.add_argument("--true-size", type=float, default=None, help=f"hidden block size, m (default {d.true_size})")
@@ -145,8 +152,10 @@ def main(args) -> int:
 
     def on_episode(record, session, checkpoint):
         post = record["posterior"]
+        counts = record.get("particles_per_action") or [0]
         bar.set_postfix(utility=f"{record['utility']:.0f}", size=f"{post['size_mean'] * 1000:.1f}mm",
-                        spread=f"{post['size_std'] * 1000:.1f}mm", loads=record["loads"])
+                        spread=f"{post['size_std'] * 1000:.1f}mm", loads=record["loads"],
+                        particles=f"{min(counts)}-{max(counts)}" if min(counts) != max(counts) else counts[0])
         bar.update(1)
 
     result = run(config, ray_address=args.ray_address, on_episode=on_episode)
