@@ -1,6 +1,6 @@
 """The coordinator's own serial time per particle per action, physics excluded.
 
-    python benchmarks/bench_coordinator.py [--domain container] [--repeats 5]
+    python benchmarks/bench_coordinator.py [--domain container] [--option KEY=VALUE ...] [--repeats 5]
 
 Before each action the coordinator computes Y for every particle and the real pose x (the
 heaviest mode of the belief); after it, it scores the particles' outcomes (symbolic match
@@ -8,7 +8,8 @@ and measurement likelihood), reweights, adds the simulated experience and resamp
 That serial part caps how far particles scale over a cluster (Amdahl). Measured here at
 N = 100, 1000 and 5000 with the shard results replayed from one real simulation (the
 physics is excluded on purpose), once with the per-particle Y loop (the old path) for
-the ratio. Prints ``coordinator_us_per_particle=`` per N and its parts.
+the ratio. Prints ``coordinator_us_per_particle=`` per N and its parts (Y, the pose mode,
+the KLD budget's count, and reweighting with experience and resampling).
 """
 from __future__ import annotations
 
@@ -22,6 +23,7 @@ import numpy as np
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
 from coordinator.belief import Belief, gaussian_log_likelihood, mode_mask  # noqa: E402
+from coordinator.commands.run import parse_options  # noqa: E402
 from coordinator.reality import Observation  # noqa: E402
 from coordinator.run_config import RunConfig  # noqa: E402
 from coordinator.session import PendingStep, Session  # noqa: E402
@@ -35,13 +37,13 @@ def one_action(session: Session, start: Observation, action: str, res: dict, loo
     t0 = time.perf_counter()
     if loop_y:
         poses = np.array([session.domain.action_pose(session._props(s), config, action)
-                          for s in session.particle_sizes()])
+                          for s in session.belief.particles])
     else:
         poses = session._particle_poses(config, action)
     t["y"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     b = session.belief
-    keep = mode_mask(b.particles, b.weights, session.config.mode_bandwidth)
+    keep = mode_mask(b.particles, b.weights, session.config.mode_bandwidth, scale=session._mode_scale())
     Belief(b.particles[keep], b.log_weights[keep], b.low, b.high).weighted_mean(poses[keep], angular=(3,))
     t["mode"] = time.perf_counter() - t0
     expected = session.task.apply(start.state, action)
@@ -55,6 +57,9 @@ def one_action(session: Session, start: Observation, action: str, res: dict, loo
     session.experience.add_simulated(start.state, action, states, expected, session.belief.weights)
     session.belief.maybe_resample(session.rng, jitter=0.1, jitter_floor=0.02)
     t["reweight"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    session._kld_count()
+    t["budget"] = time.perf_counter() - t0
     return t
 
 
@@ -63,14 +68,17 @@ def main() -> int:
     ap.add_argument("--domain", default="container")
     ap.add_argument("--repeats", type=int, default=5)
     ap.add_argument("--sizes", default="100,1000,5000")
+    ap.add_argument("--option", action="append", default=[], metavar="KEY=VALUE",
+                    help="a domain option, as on tmoc run (e.g. unknown_density=true)")
     args = ap.parse_args()
-    base = Session(RunConfig(domain=args.domain, particles=8, seed=0))
+    options = parse_options(args.option)
+    base = Session(RunConfig(domain=args.domain, particles=8, seed=0, options=options))
     truth = base.domain.true_properties()
     config = base.domain.initial_configuration(truth)
     start = Observation(config, base.domain.symbolic_state(config), base.domain.measurements(config))
     action = base.task.plan(start.state, base.task.optimistic_transition(base.n_blocks)).actions[0]
     # One real simulation of 8 particles, tiled to N (the physics is not what is measured).
-    shard = Shard(args.domain, {"n_blocks": base.n_blocks})
+    shard = Shard(args.domain, {"n_blocks": base.n_blocks, **options})
     key = base.domain.action_pose(truth, config, action)
     traj = base.domain.action_trajectory(config, action, key)
     t_pre = base.domain.transit_end_time(config, action, key)
@@ -81,12 +89,14 @@ def main() -> int:
         res = {"states": real["states"][reps], "measurements": real["measurements"][reps]}
         for loop_y, belief in ([(False, "prior"), (False, "converged")]
                                + ([(True, "prior")] if n <= 1000 else [])):
-            parts = {"y": [], "mode": [], "reweight": []}
+            parts = {"y": [], "mode": [], "budget": [], "reweight": []}
             for r in range(args.repeats):
-                session = Session(RunConfig(domain=args.domain, particles=n, seed=r))
-                if belief == "converged":      # 0.3 mm wide, as after an episode or two
+                session = Session(RunConfig(domain=args.domain, particles=n, seed=r, options=options,
+                                            particle_budget="kld"))
+                if belief == "converged":      # 1 % of the prior wide (0.3 mm of size), as after an episode or two
                     b = session.belief
-                    b.particles = truth["block_sizes"][0] + session.rng.uniform(-1.5e-4, 1.5e-4, b.particles.shape)
+                    half = 0.005 * (b.high - b.low)
+                    b.particles = session.truth_row() + session.rng.uniform(-half, half, b.particles.shape)
                 for k, v in one_action(session, start, action, res, loop_y).items():
                     parts[k].append(v)
             med = {k: float(np.median(v)) for k, v in parts.items()}
@@ -94,6 +104,7 @@ def main() -> int:
             label = ("per-particle Y loop (before)" if loop_y else "vectorised Y") + f", {belief} belief"
             print(f"N={n} {label}: coordinator_us_per_particle={total / n * 1e6:.1f} "
                   f"(Y {med['y'] / n * 1e6:.2f}, mode {med['mode'] / n * 1e6:.2f}, "
+                  f"budget {med['budget'] / n * 1e6:.2f}, "
                   f"reweight+experience+resample {med['reweight'] / n * 1e6:.2f} us) "
                   f"per action {total * 1e3:.1f} ms", flush=True)
     return 0

@@ -190,6 +190,26 @@ def check_y(d: Domain) -> str:
     return f"{n} poses"
 
 
+def check_y_batch(d: Domain) -> str:
+    """A domain's vectorised Y (`action_poses`, optional) is its per-row Y to the bit, for
+    rows of L drawn over the prior: the coordinator calls it for every particle."""
+    many = getattr(d.physics, "action_poses", None)
+    if many is None:
+        return "no action_poses (the coordinator calls action_pose per particle)"
+    from .domains import property_space
+
+    L = property_space(d.physics)
+    rows = np.random.default_rng(0).uniform(L.low, L.high, size=(16, len(L.names)))
+    config = d.physics.initial_configuration(_truth(d))
+    props = getattr(d.physics, "props_from_row", None) or (lambda r: _sized(d, r[0]))
+    for _, action in _first_actions(d):
+        batch = many(rows, config, action)
+        single = np.array([d.physics.action_pose(props(r), config, action) for r in rows])
+        assert batch.shape == single.shape and np.array_equal(batch, single), \
+            f"action_poses({action}) differs from action_pose row by row"
+    return f"{len(rows)} rows x {len(_first_actions(d))} actions, bit for bit"
+
+
 def check_measurements(d: Domain) -> str:
     """The measurement vector has a fixed length and the likelihood's channels index it."""
     config = d.physics.initial_configuration(_truth(d))
@@ -217,6 +237,7 @@ CHECKS: dict[str, Callable[[Domain], str]] = {
     "determinism": check_determinism,
     "planner": check_planner,
     "y_in_workspace": check_y,
+    "y_batch": check_y_batch,
     "measurements": check_measurements,
 }
 

@@ -160,6 +160,38 @@ class StackAndPushDomain:
         chain = state_mapping.block_labels(self.spec, config)[1] if name == "push" else []
         return np.append(key, efforts.effort(self.spec, p["block_masses"], name, block, chain))
 
+    def action_poses(self, rows: np.ndarray, config: Configuration, action: str) -> np.ndarray:
+        """Y for every row of L at once ((N, D) -> (N, 5), or (N, 6) with mass in Y), bit
+        for bit the per-row `action_pose` of `props_from_row`."""
+        rows = np.atleast_2d(np.asarray(rows, dtype=np.float64))
+        values = self._split_rows(rows)
+        sizes = values["size"]
+        density = values.get("density")
+        # Validation as per row: every value is inside its range iff each column's extremes are.
+        self.properties({"block_sizes": sizes.min(axis=0)})
+        self.properties({"block_sizes": sizes.max(axis=0)})
+        if density is not None:
+            self.properties({"block_sizes": sizes[0], "density": density.min(axis=0)})
+            self.properties({"block_sizes": sizes[0], "density": density.max(axis=0)})
+        key = state_mapping.action_poses(self.spec, sizes, config, action)
+        if not self.force_from_mass:
+            return key
+        masses = (self.spec.density if density is None else density) * sizes ** 3
+        name, args = state_mapping.parse_action(action)
+        block = state_mapping.block_index(self.spec, args[1]) if name != "push" else None
+        chain = state_mapping.block_labels(self.spec, config)[1] if name == "push" else []
+        return np.column_stack([key, efforts.efforts(self.spec, masses, name, block, chain)])
+
+    def _split_rows(self, rows: np.ndarray) -> dict[str, np.ndarray]:
+        """Rows of L (N, D) as {name: (N, n_blocks)}: `L.split` for many rows."""
+        names, n = self.L.names, self.spec.n_blocks
+        if rows.shape[1] == len(names):
+            return {name: np.repeat(rows[:, j:j + 1], n, axis=1) for j, name in enumerate(names)}
+        if rows.shape[1] == len(names) * n:
+            return {name: rows[:, j * n:(j + 1) * n] for j, name in enumerate(names)}
+        raise PropertyError(f"L: rows of {rows.shape[1]} values; expected {len(names)} "
+                            f"({', '.join(names)}) or {len(names) * n} (one per block per property)")
+
     @property
     def force_from_mass(self) -> bool:
         """Whether Y sizes the grip and the push from the believed mass: as set, else

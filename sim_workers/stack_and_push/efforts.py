@@ -62,6 +62,24 @@ def effort(spec: StackAndPushSpec, masses: np.ndarray, action: str, block: int |
     return grip_force(spec, float(masses[block]))
 
 
+def efforts(spec: StackAndPushSpec, masses: np.ndarray, action: str, block: int | None,
+            chain: list[int]) -> np.ndarray:
+    """`effort` for many hypotheses at once: (N, n_blocks) masses -> (N,), equal bit for
+    bit to `effort` row by row."""
+    masses = np.asarray(masses, dtype=np.float64)
+    if action == "push":
+        if not chain:
+            return np.full(len(masses), push_force_limit(spec, 0.0))
+        # C order: numpy then sums each row as np.sum sums one tower (pairwise, 8 partial
+        # sums from 8 blocks on); the F-ordered result of fancy indexing sums column by column.
+        tower = np.ascontiguousarray(masses[:, chain]).sum(axis=1)
+        a = spec.push_accel
+        return np.maximum(MIN_EFFORT, GRIPPER_MASS * a
+                          + spec.push_safety * (tower * (a + floor_friction(spec) * GRAVITY)))
+    m = masses[:, block]
+    return np.maximum(MIN_EFFORT, spec.grip_safety * m * GRAVITY / (2.0 * finger_friction(spec)))
+
+
 def add_efforts(spec: StackAndPushSpec, traj: np.ndarray, action: str, value: float,
                 limited: tuple[float, float] | None = None) -> np.ndarray:
     """`traj` with the effort columns: a pickup or stack grips at `value` throughout; a push

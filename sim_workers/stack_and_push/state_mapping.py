@@ -166,6 +166,53 @@ def action_pose(spec: StackAndPushSpec, sizes: np.ndarray, config: Configuration
     return np.array([x, y, spec.push_tip_z, 0.0, 0.0])
 
 
+def action_poses(spec: StackAndPushSpec, sizes: np.ndarray, config: Configuration, action: str) -> np.ndarray:
+    """Y for many hypotheses at once: (N, n_blocks) sizes -> (N, 5) key poses, row i equal
+    bit for bit to ``action_pose(spec, sizes[i], config, action)`` (the same operations in
+    the same order, over arrays), so the coordinator's serial work per action does not
+    grow with the particle count."""
+    sizes = np.asarray(sizes, dtype=np.float64)
+    n = len(sizes)
+    name, args = parse_action(action)
+    obj = config.objects
+    out = np.zeros((n, 5))
+    if name == "pickup":
+        i = block_index(spec, args[1])
+        s = sizes[:, i]
+        out[:, 0], out[:, 1], out[:, 3] = obj[i, 0], obj[i, 1], _grasp_yaw(obj[i, 3:])
+        out[:, 2] = np.maximum(s - spec.grip_depth, 0.003)
+        out[:, 4] = spec.open_ratio * s
+        return out
+    _, chain = block_labels(spec, config)
+    if name == "stack":
+        i = block_index(spec, args[1])
+        s = sizes[:, i]
+        if chain:
+            top = obj[chain[-1]]
+            xy, yaw = obj[chain[0], :2], _grasp_yaw(top[3:])
+        else:
+            xy, yaw = spec.start_xy(), 0.0
+        height = np.zeros(n)
+        for j in chain:                 # left to right, as Python's sum() in action_pose
+            height = height + sizes[:, j]
+        out[:, 0], out[:, 1], out[:, 3] = xy[0], xy[1], yaw
+        out[:, 2] = height + spec.release_clearance + (s - spec.grip_depth)
+        out[:, 4] = spec.open_ratio * s
+        return out
+    if chain:
+        rear = None
+        for j in chain:
+            y = _grasp_yaw(obj[j, 3:])
+            r = obj[j, 0] - 0.5 * sizes[:, j] * (abs(np.cos(y)) + abs(np.sin(y)))
+            rear = r if rear is None else np.minimum(rear, r)
+        y_pos = obj[chain[0], 1]
+    else:
+        rear, y_pos = spec.start_x - 0.5 * np.max(sizes, axis=1), 0.0
+    out[:, 0] = rear - spec.finger_half[0] - spec.push_gap
+    out[:, 1], out[:, 2] = y_pos, spec.push_tip_z
+    return out
+
+
 def push_end_x(spec: StackAndPushSpec, config: Configuration, action: str, key: np.ndarray) -> float:
     """Where the stroke ends: the tool point when the tower's base reaches the goal centre."""
     _, chain = block_labels(spec, config)

@@ -350,3 +350,51 @@ def test_probe_accepts_every_load_t_star_asks_for():
         probe("stack", TRUE, load_k=N, trials=1, domain="stack_and_push")
     with pytest.raises(ValueError, match=r"load: 0 is outside \[1, 8\]"):
         probe("push", TRUE, load_k=0, trials=1, domain="stack_and_push")
+
+
+# -- vectorised Y: what the coordinator calls once per action for all N particles ------------
+def _vector_cases():
+    yield {}, 1
+    yield {"unknown_density": True}, 2
+    yield {"unknown_density": True}, 2 * N          # one value per block per property
+    yield {"force_from_mass": True}, N
+
+
+@pytest.mark.parametrize("options,width", list(_vector_cases()))
+def test_action_poses_equal_per_row_action_pose_bit_for_bit(options, width):
+    """Every action on scenes with towers of 0, 3 and all N blocks (turned, offset), with a
+    size (and density) per particle: the batch is the per-row Y to the bit, efforts included."""
+    rng = np.random.default_rng(11)
+    domain = load("stack_and_push", **options)
+    L = domain.L
+    n_props = len(L.names)
+    per = width // n_props
+    low = np.repeat(np.asarray(L.low), per)
+    high = np.repeat(np.asarray(L.high), per)
+    rows = rng.uniform(low, high, size=(48, width))
+    yaws = rng.uniform(-0.6, 0.6, N)
+    offsets = rng.uniform(-0.004, 0.004, (N, 2))
+    for k in (0, 3, N):
+        config = tower(k, offsets=offsets, yaws=yaws)
+        actions = [PUSH] + [f"pickup(r,b{i},init)" for i in range(k + 1, N + 1)][:2] \
+            + [f"stack(r,b{i},tower)" for i in range(k + 1, N + 1)][:2]
+        for action in actions:
+            batch = domain.action_poses(rows, config, action)
+            single = np.array([domain.action_pose(domain.props_from_row(r) if n_props > 1 or width > 1
+                                                  else {"block_sizes": np.full(N, r[0])}, config, action)
+                               for r in rows])
+            assert batch.shape == single.shape == (48, 6 if domain.force_from_mass else 5)
+            np.testing.assert_array_equal(batch, single, err_msg=f"{action} with {k} stacked")
+
+
+def test_action_poses_refuses_a_row_out_of_range_by_name():
+    domain = load("stack_and_push", unknown_density=True)
+    rows = np.tile([0.045, 1000.0], (4, 1))
+    rows[2, 1] = 1e6
+    with pytest.raises(ValueError, match="density"):
+        domain.action_poses(rows, base(), "pickup(r,b1,init)")
+    rows[2] = [5.0, 1000.0]
+    with pytest.raises(ValueError, match="block_sizes"):
+        domain.action_poses(rows, base(), "pickup(r,b1,init)")
+    with pytest.raises(ValueError, match="L: rows of 3 values"):
+        domain.action_poses(np.zeros((2, 3)), base(), "pickup(r,b1,init)")
