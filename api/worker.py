@@ -33,7 +33,7 @@ import numpy as np
 from coordinator.agents import agent as agent_spec
 from coordinator.domains import measurement_channels
 from coordinator.reality import Observation
-from coordinator.run_config import RunConfig
+from coordinator.run_config import RunConfig, stored_run_config
 from sim_workers.configuration import Configuration
 
 from .store import QueueFull, Store
@@ -55,7 +55,7 @@ def run_config(spec: dict) -> RunConfig:
     """The RunConfig of a stored task or session spec (service-only fields dropped)."""
     fields = {k: v for k, v in spec.items() if k in RunConfig.model_fields}
     fields["shards"] = None
-    return RunConfig(**fields)
+    return stored_run_config(fields)
 
 
 # ----------------------------------------------------------------------------- Ray pools

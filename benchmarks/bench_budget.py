@@ -7,6 +7,8 @@ posterior error; then the ratios over the run:
 
     python benchmarks/bench_budget.py                      # container, P 100, 8 episodes
     python benchmarks/bench_budget.py --particles 32 --episodes 4 --quick-note
+    python benchmarks/bench_budget.py --domain stack_and_push --option unknown_density=true \
+        --truth size=0.040,density=2400 --particles 48 --episodes 6     # L = (size, density)
 """
 from __future__ import annotations
 
@@ -16,13 +18,16 @@ import time
 
 os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")
 
+from coordinator.commands.run import parse_options, parse_truth  # noqa: E402
 from coordinator.run_config import RunConfig  # noqa: E402
 from coordinator.runner import run  # noqa: E402
 
 
 def one(budget: str, args) -> tuple[list[dict], float]:
     cfg = RunConfig(domain=args.domain, particles=args.particles, episodes=args.episodes, seed=args.seed,
-                    true_size=args.true_size, particle_budget=budget, min_particles=args.min_particles)
+                    true_size=args.true_size, particle_budget=budget, min_particles=args.min_particles,
+                    truth=parse_truth([args.truth]) if args.truth else None,
+                    options=parse_options(args.option))
     t0 = time.perf_counter()
     res = run(cfg)
     return res["episodes"], time.perf_counter() - t0
@@ -36,8 +41,12 @@ def main(argv=None) -> int:
     ap.add_argument("--episodes", type=int, default=8)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--true-size", type=float, default=0.034)
+    ap.add_argument("--truth", default=None, metavar="NAME=VALUE[,...]", help="as on tmoc run")
+    ap.add_argument("--option", action="append", default=[], metavar="KEY=VALUE", help="as on tmoc run")
     ap.add_argument("--quick-note", action="store_true", help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
+    if args.truth and "size" in parse_truth([args.truth]):
+        args.true_size = parse_truth([args.truth])["size"]
     import ray
 
     out = {}
@@ -51,9 +60,14 @@ def main(argv=None) -> int:
     (fx, fx_wall), (kl, kl_wall) = out["fixed"], out["kld"]
     for a, b in zip(fx, kl):
         err = lambda e: abs(e["posterior"]["size_mean"] - args.true_size) * 1000  # noqa: E731
-        print(f"{a['episode'] + 1:7d} | {a['particle_actions']:6d} / {b['particle_actions']:6d} | "
-              f"{a['wall_s']:6.1f} / {b['wall_s']:6.1f} | {a['utility']:6.0f} / {b['utility']:6.0f} | "
-              f"{err(a):5.2f} / {err(b):5.2f}")
+        line = (f"{a['episode'] + 1:7d} | {a['particle_actions']:6d} / {b['particle_actions']:6d} | "
+                f"{a['wall_s']:6.1f} / {b['wall_s']:6.1f} | {a['utility']:6.0f} / {b['utility']:6.0f} | "
+                f"{err(a):5.2f} / {err(b):5.2f}")
+        if "density" in (a["posterior"].get("properties") or {}):
+            d = lambda e: e["posterior"]["properties"]["density"]  # noqa: E731
+            line += (f" | density {d(a)['mean']:.0f}+-{d(a)['std']:.0f} / "
+                     f"{d(b)['mean']:.0f}+-{d(b)['std']:.0f}")
+        print(line)
     pa = sum(e["particle_actions"] for e in kl) / max(1, sum(e["particle_actions"] for e in fx))
     print(f"particle_actions_ratio={pa:.3f}  (kld / fixed over the run)")
     print(f"wall_ratio={kl_wall / fx_wall:.3f}  (whole runs, Ray start included: {kl_wall:.0f} s / {fx_wall:.0f} s)")

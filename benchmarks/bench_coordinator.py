@@ -14,6 +14,7 @@ the KLD budget's count, and reweighting with experience and resampling).
 from __future__ import annotations
 
 import argparse
+import math
 import os
 import sys
 import time
@@ -82,8 +83,11 @@ def main() -> int:
     key = base.domain.action_pose(truth, config, action)
     traj = base.domain.action_trajectory(config, action, key)
     t_pre = base.domain.transit_end_time(config, action, key)
+    t0 = time.perf_counter()
     real = shard.simulate(config.to_array(), base.belief.particles, action, traj, t_pre)
+    phys_ms = (time.perf_counter() - t0) / len(base.belief.particles) * 1e3
     shard.close()
+    per_action_ms: dict[int, float] = {}
     for n in [int(v) for v in args.sizes.split(",")]:
         reps = np.arange(n) % len(real["states"])
         res = {"states": real["states"][reps], "measurements": real["measurements"][reps]}
@@ -107,7 +111,54 @@ def main() -> int:
                   f"budget {med['budget'] / n * 1e6:.2f}, "
                   f"reweight+experience+resample {med['reweight'] / n * 1e6:.2f} us) "
                   f"per action {total * 1e3:.1f} ms", flush=True)
+            if not loop_y and belief == "prior":
+                per_action_ms[n] = total * 1e3
+    amdahl(per_action_ms, phys_ms, *ray_call_costs())
     return 0
+
+
+def ray_call_costs(calls: int = 200) -> tuple[float, float]:
+    """(ms of the coordinator's time to submit one shard call, ms of one round trip) on
+    local Ray: what each action pays per shard and once, on top of the particles."""
+    import ray
+
+    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
+
+    @ray.remote
+    class Echo:
+        def simulate(self, a):
+            return a
+
+    actor = Echo.remote()
+    payload = np.zeros((8, 6))
+    ray.get(actor.simulate.remote(payload))
+    t0 = time.perf_counter()
+    refs = [actor.simulate.remote(payload) for _ in range(calls)]
+    submit = (time.perf_counter() - t0) / calls
+    ray.get(refs)
+    trips = []
+    for _ in range(50):
+        t0 = time.perf_counter()
+        ray.get(actor.simulate.remote(payload))
+        trips.append(time.perf_counter() - t0)
+    ray.shutdown()
+    return submit * 1e3, float(np.median(trips)) * 1e3
+
+
+def amdahl(per_action_ms: dict[int, float], phys_ms: float, call_ms: float, trip_ms: float) -> None:
+    """Predicted efficiency on C cores, one shard per core: an action takes the coordinator's
+    serial time, a round trip, C shard calls and ceil(N / C) particle-actions of physics;
+    on one core the same with one call and all N particle-actions."""
+    print(f"Amdahl (measured: physics {phys_ms:.1f} ms per particle-action of this action, "
+          f"shard call {call_ms * 1e3:.0f} us to submit, round trip {trip_ms:.2f} ms):")
+    for n, coord in per_action_ms.items():
+        one = coord + trip_ms + call_ms + n * phys_ms
+        effs = []
+        for cores in (16, 64, 256):
+            t = coord + trip_ms + cores * call_ms + math.ceil(n / cores) * phys_ms
+            effs.append(f"efficiency_{cores}={one / (cores * t):.2f}")
+        print(f"  N={n}: coordinator {coord:.1f} ms + physics {n * phys_ms:.0f} ms per action on one core; "
+              + " ".join(effs))
 
 
 if __name__ == "__main__":

@@ -576,13 +576,13 @@ def _rows(spec: Spec, out: Path, optimal: Optimality) -> tuple[list[dict], dict]
     rows, arrays = [], {}
     for k, s in enumerate(spec.settings):
         per = {"utility": [], "size_err": [], "optimal": [], "successes": [], "actions": [],
-               "wall_s": [], "density_err": [], "density_std": []}
+               "wall_s": [], "density_err": [], "density_std": [], "particle_actions": []}
         for r in range(spec.runs):
             data = json.loads(run_path(out, s, r).read_text())
             cfg = data["config"]
             eps = data["episodes"]
             judge = not cfg["sizes_variation"]       # T* is probed with equal blocks
-            u, err, opt, succ, acts, d_err, d_std = [], [], [], [], [], [], []
+            u, err, opt, succ, acts, d_err, d_std, pa = [], [], [], [], [], [], [], []
             true_density = _true_density(cfg)
             for e in eps:
                 n_fail = int(sum(e["failures"].values()))
@@ -613,9 +613,10 @@ def _rows(spec: Spec, out: Path, optimal: Optimality) -> tuple[list[dict], dict]
                 opt.append(np.nan if is_opt is None else float(is_opt))
                 succ.append(e["actions"] - n_fail)
                 acts.append(e["actions"])
+                pa.append(e.get("particle_actions", np.nan))     # runs from before the budget: unknown
             for key, v in (("utility", u), ("size_err", err), ("optimal", opt),
                            ("successes", succ), ("actions", acts), ("density_err", d_err),
-                           ("density_std", d_std)):
+                           ("density_std", d_std), ("particle_actions", pa)):
                 per[key].append(v)
             per["wall_s"].append(data["runtime"]["wall_s"])
         arrays[s.label] = {key: (np.array(v, dtype=float) if key != "wall_s" else v)
@@ -690,6 +691,9 @@ def summarize(spec: Spec, arrays: dict, optimal: Optimality) -> dict:
             "successful_actions_pct_last_fifth": 100 * float(a["successes"][:, -tail:].sum()
                                                              / max(1.0, a["actions"][:, -tail:].sum())),
             "mean_wall_s_per_run": float(np.mean(a["wall_s"])),
+            # the adaptive budget at work: particle worlds per episode, first and last
+            "particle_actions_first_episode": _nan_mean(a["particle_actions"][:, 0]),
+            "particle_actions_last_episode": _nan_mean(a["particle_actions"][:, -1]),
         }
         if spec.name == "weights":
             truth = _true_density(cfg.model_dump())
@@ -720,6 +724,8 @@ def summarize(spec: Spec, arrays: dict, optimal: Optimality) -> dict:
                             "whose expected utility under T* equals the optimum's; not judged "
                             "with sizes_variation (T* is probed with equal blocks)",
             "success_rate": "successful actions / actions in the episode",
+            "particle_actions": "particle worlds simulated in the episode (actions x particles; "
+                                "with --particle-budget kld the count falls as the belief converges)",
         },
     }
     if spec.name == "milestones":
@@ -888,6 +894,13 @@ def summary_table(summary: dict) -> str:
         for row in summary["table_ii"]:
             lines.append(f"| {row['setting']} | " + " | ".join(
                 f"{c['mean']:.0f} ({c['std']:.0f})" for c in row["episodes"].values()) + " |")
+    if spec.get("particle_budget", "fixed") != "fixed":
+        lines += ["", f"Particle budget `{spec['particle_budget']}` (floor {spec.get('min_particles')}): "
+                      "particle-actions per episode, mean over runs", "",
+                  "| setting | episode 1 | last episode |", "|---|---|---|"]
+        for label, v in summary["settings"].items():
+            lines.append(f"| {label} | {_fmt(v['particle_actions_first_episode'], 0, '')} "
+                         f"| {_fmt(v['particle_actions_last_episode'], 0, '')} |")
     if summary["experiment"] == "weights":
         lines += ["", "| setting | density | posterior error of the density, last episode "
                       "| density posterior std | posterior error of the size (mm) |",

@@ -24,7 +24,7 @@ from .domains import load as load_domain, property_space
 from .experience import ExperiencePool
 from .particle_budget import next_count
 from .reality import Observation
-from .run_config import RunConfig
+from .run_config import RunConfig, stored_run_config
 from .transition_model import TransitionModel
 
 WORKSPACE = Bounds(np.array([-0.5, -0.6, 0.0, -np.pi]), np.array([1.2, 0.6, 0.6, np.pi]))
@@ -405,7 +405,7 @@ class Session:
 
     @classmethod
     def from_checkpoint(cls, data: dict, pool=None) -> "Session":
-        session = cls(RunConfig(**data["config"]), pool)
+        session = cls(stored_run_config(data["config"]), pool)
         if data["belief"] is not None:
             session.belief = Belief.from_dict(data["belief"])
         session.experience = ExperiencePool.from_dict(data["experience"], session.task.context_of)

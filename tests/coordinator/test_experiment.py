@@ -236,6 +236,24 @@ def test_resume_continues_a_partial_run_from_its_checkpoint(ray_cluster, tmp_pat
     assert (part / "milestones.csv").read_text() == (full / "milestones.csv").read_text()
 
 
+def test_particles_with_the_kld_budget_shows_the_count_falling(ray_cluster, tmp_path):
+    """`tmoc experiment particles --particle-budget kld`: the CSV records each episode's
+    particle-actions, the count falls from episode 1 to the last as the belief converges,
+    and the summary table says so in its own rows."""
+    out = tmp_path / "kld"
+    assert main(["experiment", "particles", "--runs", "1", "--episodes", "3", "--particles", "24",
+                 "--probe-trials", "1", "--no-progress", "--seed", "3", "--particle-budget", "kld",
+                 "--min-particles", "4", "--out", str(out)]) == 0
+    summary = json.loads((out / "particles.json").read_text())
+    assert summary["spec"]["particle_budget"] == "kld"
+    top = summary["settings"]["N=24"]
+    assert top["particle_actions_last_episode"] < top["particle_actions_first_episode"]
+    rows = [r for r in _csv(out / "particles.csv") if r["setting"] == "N=24"]
+    counts = [int(r["particle_actions"]) for r in rows]
+    assert len(counts) == 3 and counts[-1] < counts[0]
+    assert "| N=24 | " + str(round(top["particle_actions_first_episode"])) in (out / "particles.md").read_text()
+
+
 # -- docs/RESULTS.md ------------------------------------------------------------------------
 RESULTS = Path(__file__).resolve().parents[2] / "docs"
 

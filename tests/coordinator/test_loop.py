@@ -23,7 +23,8 @@ def _strip_times(result: dict) -> dict:
 
 
 def test_posterior_converges_to_the_hidden_size():
-    cfg = RunConfig(agent="tmoc", particles=24, episodes=1, max_steps=6, seed=3, true_size=0.050)
+    cfg = RunConfig(agent="tmoc", particles=24, episodes=1, max_steps=6, seed=3, true_size=0.050,
+                    particle_budget="fixed")      # every action with all 24 (counted below)
     result = run(cfg)
     prior_std = (0.060 - 0.030) / np.sqrt(12)
     post = result["episodes"][-1]["posterior"]
