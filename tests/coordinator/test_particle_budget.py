@@ -74,3 +74,20 @@ def test_an_adaptive_run_depends_on_its_seed_alone(runs):
     again = _run("kld")
     strip = lambda eps: [{k: v for k, v in e.items() if not k.endswith("_s")} for e in eps]  # noqa: E731
     assert strip(again["episodes"]) == strip(runs["kld"]["episodes"])
+
+
+def test_stored_settings_from_before_the_budget_keep_the_fixed_budget():
+    """The default is kld, but a stored dump without `particle_budget` (a checkpoint or a
+    task spec written before the field existed) ran fixed and resumes fixed."""
+    from coordinator.run_config import RunConfig, stored_run_config
+    from coordinator.session import Session
+
+    assert RunConfig().particle_budget == "kld"
+    old = RunConfig(particles=6, episodes=1).model_dump()
+    old.pop("particle_budget")
+    assert stored_run_config(old).particle_budget == "fixed"
+    assert stored_run_config({**old, "particle_budget": "kld"}).particle_budget == "kld"
+    session = Session(RunConfig(particles=6, episodes=1, particle_budget="fixed"))
+    checkpoint = session.to_checkpoint()
+    checkpoint["config"].pop("particle_budget")
+    assert Session.from_checkpoint(checkpoint).config.particle_budget == "fixed"
