@@ -29,7 +29,10 @@ from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 from starlette.concurrency import run_in_threadpool
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
+from . import dashboard
+from . import frames as frame_routes
 from . import schemas as S
+from .auth import CookieSessions, TokenGate, authorised, bearer_ok  # noqa: F401  (TokenGate, bearer_ok: public here too)
 from .store import TERMINAL, QueueFull, Store
 from .worker import (Notifier, PoolManager, SessionConflict, SessionGone, SessionManager,
                      TaskWorker, new_id, run_config)
@@ -68,6 +71,7 @@ class Settings:
     max_body_bytes: int = 4 * 1024 * 1024
     n_shards: int | None = None
     shutdown_grace_s: float = 5.0
+    max_frames: int = 48          # scene pictures kept per task (0: none rendered)
 
 
 def _version() -> str:
@@ -245,28 +249,6 @@ async def _send_json(send, status: int, payload: dict, headers: list | None = No
     await send({"type": "http.response.body", "body": body})
 
 
-class TokenGate:
-    """With a token set: 401 for every path but the open ones, before anything else (the
-    body included) is read or parsed."""
-
-    def __init__(self, app, token: str, open_paths: tuple[str, ...] = ("/health",)) -> None:
-        self.app, self.token, self.open_paths = app, token.encode(), open_paths
-
-    async def __call__(self, scope, receive, send):
-        if scope["type"] != "http" or scope["path"] in self.open_paths:
-            return await self.app(scope, receive, send)
-        if not bearer_ok(dict(scope.get("headers", ())).get(b"authorization", b""), self.token):
-            return await _send_json(send, 401, {"detail": "missing or invalid token: send "
-                                                          "Authorization: Bearer <token>"},
-                                    [(b"www-authenticate", b"Bearer")])
-        await self.app(scope, receive, send)
-
-
-def bearer_ok(header: bytes, token: bytes) -> bool:
-    scheme, _, credentials = header.partition(b" ")
-    return scheme.lower() == b"bearer" and hmac.compare_digest(credentials.strip(), token)
-
-
 class AllowHeader:
     """A 405 lists every method the path supports (Starlette lists only the first route's)."""
 
@@ -304,7 +286,8 @@ class AllowHeader:
 def _task_links(task_id: str) -> dict[str, str]:
     base = f"/v1/tasks/{task_id}"
     return {"self": base, "events": f"{base}/events", "episodes": f"{base}/episodes",
-            "belief": f"{base}/belief", "curve": f"{base}/curve", "curve_png": f"{base}/curve.png"}
+            "belief": f"{base}/belief", "curve": f"{base}/curve", "curve_png": f"{base}/curve.png",
+            "frames": f"{base}/frames", "transition": f"{base}/transition"}
 
 
 def task_nodes(row: dict, live: list[dict] | None = None) -> list[dict] | None:
@@ -343,9 +326,20 @@ def session_view(row: dict) -> dict:
         "episodes": row["spec"]["episodes"], "episodes_done": row["episodes_done"],
         "in_episode": bool(row["in_episode"]), "step": row["step"], "pending": row.get("pending"),
         "posterior": row.get("posterior"), "latest": row.get("latest"),
+        "last_observation": _last_observation(row.get("last_reply")),
         "created_at": S.ts(row["created_at"]), "updated_at": S.ts(row["updated_at"]),
         "links": _session_links(row["id"]),
     }
+
+
+def _last_observation(last_reply: dict | None) -> dict | None:
+    """The last accepted observation (as stored: configuration, state, measurements), the
+    action and step it answered and whether that action succeeded."""
+    if not last_reply:
+        return None
+    report = (last_reply.get("reply") or {}).get("report") or {}
+    return {"step_id": last_reply.get("step_id"), "action": last_reply.get("action"),
+            "success": report.get("success"), **(last_reply.get("observation") or {})}
 
 
 def _curve_points(records: list[dict]) -> list[dict]:
@@ -408,7 +402,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     @asynccontextmanager
     async def lifespan(app: FastAPI):
         store = Store(settings.db)
-        worker = TaskWorker(store, pools, notifier)
+        worker = TaskWorker(store, pools, notifier, max_frames=settings.max_frames)
         sessions = SessionManager(store, pools, settings.max_sessions)
         store_box.update(store=store, worker=worker, sessions=sessions)
         app.state.store, app.state.worker, app.state.sessions = store, worker, sessions
@@ -452,8 +446,9 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     # Starlette runs the last added outermost: the token first, then the body.
     app.add_middleware(BodyLimit, limit=settings.max_body_bytes)
     app.add_middleware(AllowHeader, fastapi_app=app)
+    cookie_sessions = CookieSessions()
     if settings.token:
-        app.add_middleware(TokenGate, token=settings.token)
+        app.add_middleware(TokenGate, token=settings.token, sessions=cookie_sessions)
 
     def store() -> Store:
         return store_box["store"]
@@ -464,8 +459,13 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         bearer = HTTPBearer(auto_error=False, description="the server's TMOC_API_TOKEN")
         expected = settings.token.encode()
 
-        async def require_token(creds: Annotated[HTTPAuthorizationCredentials | None, Depends(bearer)]):
-            if creds is None or not hmac.compare_digest(creds.credentials.encode(), expected):
+        async def require_token(request: Request,
+                                creds: Annotated[HTTPAuthorizationCredentials | None, Depends(bearer)]):
+            # `creds` declares the bearer scheme in the OpenAPI schema; a browser signed in at
+            # /ui sends the session cookie instead (api.auth).
+            if creds is not None and hmac.compare_digest(creds.credentials.encode(), expected):
+                return
+            if not authorised(dict(request.scope.get("headers", ())), expected, cookie_sessions):
                 raise HTTPException(401, "missing or invalid token: send Authorization: Bearer <token>",
                                     headers={"WWW-Authenticate": "Bearer"})
 
@@ -535,6 +535,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         return get_swagger_ui_html(openapi_url="/openapi.json", title="TMOC service")
 
     app.include_router(docs)
+    app.include_router(dashboard.router(settings.token, cookie_sessions))
 
     v1 = APIRouter(prefix="/v1", dependencies=deps, responses=_err(401))
     TaskId = Annotated[str, Path(min_length=1, max_length=64, description="task id (t_...)")]
@@ -716,6 +717,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         records = [json.loads(r) for _, r in store().episodes(task_id)]
         png = await run_in_threadpool(_render_png, row["spec"], records)
         return Response(png, media_type="image/png")
+
+    frame_routes.add_routes(v1, store, task_or_404, TaskId, settings.max_frames, _err)
 
     # -- domains ---------------------------------------------------------------------------
     @v1.get("/domains", response_model=S.DomainList, tags=["domains"])

@@ -184,6 +184,10 @@ def task_spec_model(max_particles: int, max_episodes: int, max_steps: int = 1000
     """A task: the RunConfig fields, with this server's limits, and the kind of reality;
     `options` and `truth` per domain."""
     fields = _spec_fields(set(), max_particles, max_episodes, max_steps)
+    fields["frames"] = (bool, Field(
+        True, description="render scene pictures (GET /v1/tasks/{id}/frames): the real world at the "
+                          "end of every episode, every failed action beside particles' predictions; "
+                          "they change nothing in the results"))
     fields["reality"] = (Literal["simulated"], Field(
         "simulated", description="the real world of a task: a simulated grounded world holding "
                                  "the hidden truth (`true_size`, `truth`). An external robot is "
@@ -377,6 +381,9 @@ class SessionView(BaseModel):
     pending: StepView | None
     posterior: dict[str, Any] | None
     latest: dict[str, Any] | None = Field(None, description="the last finished episode's record")
+    last_observation: dict[str, Any] | None = Field(
+        None, description="the last accepted observation: step_id, action, success, configuration, "
+                          "state, measurements")
     created_at: datetime
     updated_at: datetime
     links: dict[str, str]
@@ -459,3 +466,51 @@ class DomainView(BaseModel):
 class DomainList(BaseModel):
     items: list[DomainView]
     total: int
+
+
+# ------------------------------------------------------------------------- dashboard views
+class FramePanel(BaseModel):
+    label: str = Field(description="real, heaviest, matched or did not match")
+    title: str
+    particle: int | None = None
+    weight: float | None = Field(None, description="the particle's weight before the action's update")
+    size_mm: float | None = None
+    matched: bool | None = Field(None, description="its predicted outcome matched the real one "
+                                                   "(as the likelihood judged it)")
+    success: bool | None = Field(None, description="the action had its planned effect in this world")
+
+
+class FrameView(BaseModel):
+    name: str = Field(description="e003-end (episode 3's end) or e003-s007 (its action 7 failed)")
+    kind: Literal["episode_end", "failed_action"]
+    episode: int
+    step: int | None
+    action: str | None
+    panels: list[FramePanel] = Field(description="left to right in the PNG")
+    bytes: int
+    created_at: datetime
+    url: str
+
+
+class FrameList(BaseModel):
+    run_id: str
+    items: list[FrameView] = Field(description="oldest first")
+    total: int
+    max_frames: int = Field(description="frames kept per task (the oldest go first); --max-frames")
+
+
+class TransitionRow(BaseModel):
+    action: str
+    context: int
+    p: float = Field(description="T: the probability that the action succeeds in this context")
+    successes: float = Field(description="weighted successes T is estimated from (real + simulated)")
+    trials: float
+    real_successes: float
+    real_trials: float
+
+
+class TransitionView(BaseModel):
+    run_id: str
+    episodes_done: int
+    rows: list[TransitionRow] = Field(description="one per context, in the domain's order (the "
+                                                  "optimistic prior before the first episode)")

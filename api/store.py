@@ -7,6 +7,8 @@ Tables:
                     replayed episode impossible to store twice
   sessions          external-robot sessions: spec, status, checkpoint at the last episode
                     boundary, the current episode's initial observation, a mirror for reads
+  frames            scene pictures of a task (PNG and metadata), at most `max_frames` per
+                    task: the oldest are deleted when a new one comes
   session_steps     the observations of a session's current episode, in order; with the
                     checkpoint they rebuild the session exactly after a restart
 
@@ -75,6 +77,15 @@ CREATE TABLE IF NOT EXISTS sessions (
     belief TEXT,
     latest TEXT
 );
+CREATE TABLE IF NOT EXISTS frames (
+    seq INTEGER PRIMARY KEY AUTOINCREMENT,
+    run_id TEXT NOT NULL,
+    name TEXT NOT NULL,
+    meta TEXT NOT NULL,
+    png BLOB NOT NULL,
+    created_at REAL NOT NULL,
+    UNIQUE (run_id, name)
+);
 CREATE TABLE IF NOT EXISTS session_steps (
     session_id TEXT NOT NULL,
     episode INTEGER NOT NULL,
@@ -91,6 +102,7 @@ TERMINAL = ("succeeded", "failed", "cancelled")
 # start-up, so a database written by an earlier version keeps working.
 ADDED_COLUMNS = (
     ("sessions", "last_reply", "TEXT"),     # the last accepted observation and its reply
+    ("tasks", "transition", "TEXT"),        # T per context at the last episode boundary
 )
 
 
@@ -100,7 +112,7 @@ def _add_missing_columns(db: sqlite3.Connection) -> None:
         if column not in have:
             db.execute(f"ALTER TABLE {table} ADD COLUMN {column} {typ}")
 
-_TASK_JSON = ("spec", "latest", "belief", "checkpoint", "result")
+_TASK_JSON = ("spec", "latest", "belief", "checkpoint", "result", "transition")
 _SESSION_JSON = ("spec", "checkpoint", "episode_start", "pending", "posterior", "belief", "latest",
                  "last_reply")
 
@@ -275,10 +287,12 @@ class Store:
                 (task_id, _dumps(spec), int(spec["episodes"]), now, now))
         return self.get_task(task_id)
 
-    def get_task(self, task_id: str, *, checkpoint: bool = False, belief: bool = False) -> dict | None:
+    def get_task(self, task_id: str, *, checkpoint: bool = False, belief: bool = False,
+                 transition: bool = False) -> dict | None:
         cols = "*"
         row = self._one(f"SELECT {cols} FROM tasks WHERE id = ?", (task_id,))
-        skip = tuple(c for c, keep in (("checkpoint", checkpoint), ("belief", belief)) if not keep)
+        skip = tuple(c for c, keep in (("checkpoint", checkpoint), ("belief", belief),
+                                       ("transition", transition)) if not keep)
         return _row(row, _TASK_JSON, skip)
 
     def task_status(self, task_id: str) -> tuple[str, int] | None:
@@ -323,11 +337,12 @@ class Store:
         return self.get_task(task_id, checkpoint=True)
 
     def record_episode(self, run_id: str, record: dict, checkpoint: dict | None,
-                       belief: dict | None) -> bool:
-        """Store one task episode, its checkpoint and progress atomically; False if the
-        episode was already stored (nothing is then changed)."""
+                       belief: dict | None, transition: list | None = None) -> bool:
+        """Store one task episode, its checkpoint, progress (and T per context) atomically;
+        False if the episode was already stored (nothing is then changed)."""
         now = time.time()
         rec, ckpt, bel = _dumps(record), _dumps(checkpoint), _dumps(belief)   # outside the lock
+        trans = _dumps(transition)
         with self._write() as db:
             cur = db.execute("INSERT INTO episodes (run_id, episode, record, created_at) VALUES (?, ?, ?, ?) "
                              "ON CONFLICT (run_id, episode) DO NOTHING",
@@ -336,8 +351,8 @@ class Store:
                 return False
             db.execute("UPDATE tasks SET episodes_done = (SELECT COUNT(*) FROM episodes WHERE run_id = ?), "
                        "latest = ?, checkpoint = COALESCE(?, checkpoint), belief = COALESCE(?, belief), "
-                       "updated_at = ? WHERE id = ?",
-                       (run_id, rec, ckpt, bel, now, run_id))
+                       "transition = COALESCE(?, transition), updated_at = ? WHERE id = ?",
+                       (run_id, rec, ckpt, bel, trans, now, run_id))
         return True
 
     def finish_task(self, task_id: str, status: str, *, error: str | None = None,
@@ -379,6 +394,29 @@ class Store:
             args += (limit,)
         return [(r[0], r[1]) for r in self._all(sql, args)]
 
+    # -- frames --------------------------------------------------------------------------
+    def add_frame(self, run_id: str, name: str, png: bytes, meta: dict, max_frames: int) -> None:
+        """Store (or replace: a resumed episode renders its frames again) one frame; keep the
+        task's newest `max_frames`."""
+        now = time.time()
+        text = _dumps(meta)
+        with self._write() as db:
+            db.execute("INSERT INTO frames (run_id, name, meta, png, created_at) VALUES (?, ?, ?, ?, ?) "
+                       "ON CONFLICT (run_id, name) DO UPDATE SET meta = excluded.meta, "
+                       "png = excluded.png, created_at = excluded.created_at",
+                       (run_id, name, text, sqlite3.Binary(png), now))
+            db.execute("DELETE FROM frames WHERE run_id = ? AND seq NOT IN (SELECT seq FROM frames "
+                       "WHERE run_id = ? ORDER BY seq DESC LIMIT ?)", (run_id, run_id, int(max_frames)))
+
+    def frames(self, run_id: str) -> list[dict]:
+        """The task's frames' metadata, oldest first (with `created_at`)."""
+        rows = self._all("SELECT meta, created_at FROM frames WHERE run_id = ? ORDER BY seq", (run_id,))
+        return [{**json.loads(r[0]), "created_at": r[1]} for r in rows]
+
+    def frame_png(self, run_id: str, name: str) -> bytes | None:
+        row = self._one("SELECT png FROM frames WHERE run_id = ? AND name = ?", (run_id, name))
+        return None if row is None else bytes(row[0])
+
     # -- sessions ------------------------------------------------------------------------
     def create_session(self, session_id: str, spec: dict, checkpoint: dict, mirror: dict,
                        max_active: int | None = None) -> None:
@@ -405,7 +443,7 @@ class Store:
 
     def list_sessions(self, limit: int, offset: int) -> tuple[list[dict], int]:
         rows = self._all("SELECT seq, id, spec, status, created_at, updated_at, episodes_done, in_episode, "
-                         "step, pending, posterior, latest FROM sessions ORDER BY seq DESC LIMIT ? OFFSET ?",
+                         "step, pending, posterior, latest, last_reply FROM sessions ORDER BY seq DESC LIMIT ? OFFSET ?",
                          (limit, offset))
         total = self._one("SELECT COUNT(*) FROM sessions")[0]
         return [_row(r, _SESSION_JSON) for r in rows], total

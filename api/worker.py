@@ -235,8 +235,9 @@ class TaskWorker:
     """Runs tasks one at a time, in the order queued, on a background thread."""
 
     def __init__(self, store: Store, pools: PoolManager, notifier: Notifier,
-                 stall_s: float = 3600.0) -> None:
+                 stall_s: float = 3600.0, max_frames: int = 48) -> None:
         self.store = store
+        self.max_frames = max_frames          # scene pictures kept per task (0: none rendered)
         self.pools = pools
         self.notifier = notifier
         self._wake = threading.Event()
@@ -334,6 +335,14 @@ class TaskWorker:
             self._nodes.pop(task_id, None)        # stored with the result by now
             self.notifier.notify(task_id)
 
+    def _frames_sink(self, task_id: str, spec: dict):
+        """Where the task's scene pictures go (None: the task or the server has them off)."""
+        if not spec.get("frames", True) or self.max_frames <= 0:
+            return None
+        from .frames import StoreFrameSink
+
+        return StoreFrameSink(self.store, task_id, self.max_frames)
+
     def _run(self, task_id: str) -> None:
         from coordinator.runner import run
 
@@ -356,7 +365,7 @@ class TaskWorker:
         def on_episode(record: dict, session, checkpoint: dict) -> None:
             self.beat()
             belief = session.belief.summary() if session.belief is not None else None
-            self.store.record_episode(task_id, record, checkpoint, belief)
+            self.store.record_episode(task_id, record, checkpoint, belief, session.transition_table())
             self._nodes[task_id] = checkpoint.get("nodes", [])
             self.notifier.notify(task_id)
 
@@ -372,7 +381,7 @@ class TaskWorker:
                 result = None
             else:
                 result = run(config, on_episode=on_episode, resume=resume,
-                             should_stop=should_stop, pool=pool)
+                             should_stop=should_stop, pool=pool, frames=self._frames_sink(task_id, row["spec"]))
         except sqlite3.Error:
             raise                         # storage, not the task: retried, resumes
         except Exception as exc:

@@ -75,7 +75,8 @@ class _Tallied:
 def run(config: RunConfig, *, ray_address: str | None = None,
         on_episode: Callable[[dict, Session, dict], None] | None = None,
         resume: dict | None = None, should_stop: Callable[[], bool] | None = None,
-        pool: ShardPool | None = None, kill_shard_at: int | None = None) -> dict:
+        pool: ShardPool | None = None, kill_shard_at: int | None = None,
+        frames=None) -> dict:
     """Run the episodes of `config`; returns the result record (see `tmoc run`).
 
     on_episode(record, session, checkpoint) is called after every episode with a
@@ -84,6 +85,9 @@ def run(config: RunConfig, *, ray_address: str | None = None,
     episodes. `pool` lets a long-lived service share one shard pool between tasks.
     `kill_shard_at` (tests only): kill shard 0 right before that episode, to check that Ray
     restarts it and the run ends with identical results.
+
+    `frames` (a ``coordinator.frames.FrameSink``): scene pictures of the run go there (the
+    end of every episode, every failed action); they change nothing in the results.
 
     ``runtime.nodes`` of the result lists the Ray nodes that ran particles (node_id,
     hostname, shards, particle_actions); the checkpoint carries them as ``nodes``.
@@ -101,6 +105,10 @@ def run(config: RunConfig, *, ray_address: str | None = None,
     else:
         pool, own_pool = None, False
     reality = reality_for(config, session)
+    if frames is not None:
+        from .frames import FrameRecorder
+
+        session.frames = FrameRecorder(config.domain, domain_options(config), reality.truth, frames)
     # Reality's draws come from their own stream: the agent's decisions never shift them.
     reality_rng = np.random.default_rng(np.random.SeedSequence(config.seed).spawn(2)[1])
     if resume:
@@ -123,6 +131,8 @@ def run(config: RunConfig, *, ray_address: str | None = None,
                                              "reruns": tally.reruns})
     finally:
         reality.close()
+        if session.frames is not None:
+            session.frames.close()
         ray_s = pool.timings["ray_s"] - ray_s0 if pool is not None else 0.0
         if own_pool and pool is not None:
             pool.close()

@@ -97,6 +97,10 @@ class Session:
         self.pending: PendingStep | None = None
         self.stats = EpisodeStats()
         self._t0 = 0.0
+        # Pictures (coordinator.frames.FrameRecorder): a view of the run, never part of its
+        # state; not checkpointed (the recorder holds a pybullet client of this process).
+        self.frames = None
+        self._prediction = None
 
     def _point_belief(self, config: RunConfig) -> Belief:
         """Every particle at the true properties (L given, as in the paper's real-robot
@@ -111,6 +115,20 @@ class Session:
             self.experience, self.n_blocks,
             sim_weight=self.config.sim_weight if self.agent.sim_experience else 0.0,
             contexts=self.task.contexts(self.n_blocks), context_fn=self.task.context_of)
+
+    def transition_table(self) -> list[dict]:
+        """T per context, for people: the success probability and the weighted counts it
+        comes from (all, and the real world's share), in the domain's context order."""
+        T = self.transition
+        real = self.experience.counts()["real"]
+        rows = []
+        for name, k in T.contexts:
+            i = T._slot(name, k)
+            rs, rn = real.get((name, k), (0.0, 0.0))
+            rows.append({"action": name, "context": int(k), "p": T.probability(name, k),
+                         "successes": float(T.successes[name][i]), "trials": float(T.trials[name][i]),
+                         "real_successes": float(rs), "real_trials": float(rn)})
+        return rows
 
     def truth_row(self) -> np.ndarray:
         """The hidden truth as a row of L (the "sizes" variation: block 1 is 20 % larger)."""
@@ -266,6 +284,11 @@ class Session:
         self.experience.add_real(before.state, step.action, observation.state, step.expected)
         self.transition = self._transition_model()
         self._account(before.state, step, observation.state, success)
+        if self.frames is not None and not success:
+            self.frames.failed_action(self.episode, self.stats.actions - 1, step.action, step.expected,
+                                      observation.configuration, observation.state,
+                                      self._props(self.believed_row()), self._prediction, self._props)
+        self._prediction = None
         self.observation = observation
         self.pending = None
         if success:
@@ -293,6 +316,8 @@ class Session:
         self.particle_actions += len(sizes)
         self.particle_steps += int(res["steps"].sum())
         loglik = self._symbolic_loglik(step, observation.state, res["states"])
+        if self.frames is not None:      # before the update: the weights that predicted
+            self._prediction = self._predicted(step, observation.state, res, sizes)
         if self.config.use_measurements:
             idx, sigma = self.domain.measurement_model()
             loglik = loglik + gaussian_log_likelihood(observation.measurements[idx],
@@ -314,6 +339,18 @@ class Session:
                 report["resampled"] = True
             report["next_particles"] = n
         return report
+
+    def _predicted(self, step: PendingStep, observed: frozenset[str], res: dict, rows: np.ndarray):
+        """The particles' predictions of this action, for its picture (copies; reads only)."""
+        from .frames import Prediction
+
+        if self.config.match == "state":
+            matched = [s == observed for s in res["states"]]
+        else:
+            real_ok = observed == step.expected
+            matched = [(s == step.expected) == real_ok for s in res["states"]]
+        return Prediction(np.array(res["configurations"], copy=True), list(res["states"]),
+                          self.belief.weights.copy(), np.array(matched, dtype=bool), rows.copy())
 
     def _kld_count(self) -> int:
         """The next action's particle count (KLD-sampling over the current posterior)."""
@@ -382,6 +419,8 @@ class Session:
             "particle_actions": int(sum(s.particle_counts)), "particles_per_action": list(s.particle_counts),
         }
         self.episodes.append(record)
+        if self.frames is not None:
+            self.frames.episode_end(record, self.observation.configuration, self._props(self.believed_row()))
         self.episode += 1
         return record
 

@@ -55,6 +55,9 @@ def register(sub) -> None:
     p.add_argument("--shards", type=int, default=None, help="shard actors (default: one per CPU)")
     p.add_argument("--ray-address", default=None, help="join a running Ray cluster")
     p.add_argument("--out", default="runs/latest", help="output directory")
+    p.add_argument("--frames", action="store_true",
+                   help="also write scene pictures (PNG) to OUT/frames/: the real world at the end of "
+                        "every episode and every failed action beside what particles predicted")
     p.add_argument("--no-progress", action="store_true")
     p.set_defaults(func=main)
 
@@ -158,9 +161,16 @@ def main(args) -> int:
                         particles=f"{min(counts)}-{max(counts)}" if min(counts) != max(counts) else counts[0])
         bar.update(1)
 
-    result = run(config, ray_address=args.ray_address, on_episode=on_episode)
+    sink = None
+    if args.frames:
+        from ..frames import DirectorySink
+
+        sink = DirectorySink(Path(args.out) / "frames")
+    result = run(config, ray_address=args.ray_address, on_episode=on_episode, frames=sink)
     bar.close()
     path, png = write_result(result, Path(args.out))
-    print(json.dumps({"summary": result["summary"], "runtime": result["runtime"],
-                      "result": str(path), "plot": str(png)}, indent=2))
+    out = {"summary": result["summary"], "runtime": result["runtime"], "result": str(path), "plot": str(png)}
+    if sink is not None:
+        out["frames"] = {"folder": str(sink.folder), "count": len(sink.index)}
+    print(json.dumps(out, indent=2))
     return 0

@@ -33,6 +33,8 @@ def register(sub) -> None:
     p.add_argument("--max-sessions", type=int, default=16, help="active robot sessions before 429")
     p.add_argument("--shards", type=int, default=None,
                    help="shard actors per pool (default: one per CPU of the Ray cluster)")
+    p.add_argument("--max-frames", type=int, default=48,
+                   help="scene pictures kept per task (the oldest go first; 0: none rendered)")
     p.add_argument("--log-level", default="info", choices=["critical", "error", "warning", "info", "debug"])
     p.add_argument("--no-access-log", action="store_true", help="do not log every request")
     p.set_defaults(func=main)
@@ -64,6 +66,8 @@ def check_args(args) -> str | None:
         raise UsageError(f"--max-episodes: {args.max_episodes} is over 100000, the most a task can use")
     if args.max_steps > 1000:
         raise UsageError(f"--max-steps: {args.max_steps} is over 1000, the most a task can use")
+    if getattr(args, "max_frames", 0) < 0 or getattr(args, "max_frames", 0) > 10000:
+        raise UsageError(f"--max-frames: must be in [0, 10000] (got {args.max_frames})")
     if args.shards is not None and args.shards < 1:
         raise UsageError(f"--shards: must be at least 1 (got {args.shards})")
     token = os.environ.get("TMOC_API_TOKEN")
@@ -117,7 +121,8 @@ def main(args) -> int:
     settings = Settings(db=args.db, ray_address=args.ray_address, token=token,
                         max_particles=args.max_particles, max_episodes=args.max_episodes,
                         max_steps=args.max_steps, max_queued=args.max_queued,
-                        max_sessions=args.max_sessions, n_shards=args.shards)
+                        max_sessions=args.max_sessions, n_shards=args.shards,
+                        max_frames=args.max_frames)
     app = create_app(settings)
     config = uvicorn.Config(app, host=args.host, port=args.port, workers=1,
                             log_level=args.log_level, access_log=not args.no_access_log,

@@ -1,0 +1,111 @@
+"""Access to the service: the bearer token, and a session cookie for browsers (issue 16).
+
+A browser cannot put ``Authorization: Bearer`` on a page load, an ``<img>`` or an
+EventSource, and a token in a URL ends up in logs and history. So ``POST /ui/login`` with
+the token (form or JSON) sets ``tmoc_session``: a random id the server maps in memory to an
+expiry (never the token, nor anything derived from it), HttpOnly (page scripts cannot read
+it) and SameSite=Strict (no other site's page sends it, so no cross-site request forgery).
+Every gated route accepts either credential. A restart forgets the sessions: sign in again.
+"""
+from __future__ import annotations
+
+import hmac
+import secrets
+import threading
+import time
+
+from starlette.requests import cookie_parser
+
+COOKIE = "tmoc_session"
+SESSION_TTL_S = 12 * 3600
+MAX_SESSIONS = 1000          # sign-ins kept at once; the oldest goes first beyond it
+
+# Paths open without credentials: liveness, and the dashboard's shell (sign-in page,
+# static files, login/logout). The shell holds no data: everything it shows comes from
+# the gated /v1 routes.
+OPEN_PATHS = ("/health",)
+OPEN_PREFIXES = ("/ui",)
+
+
+class CookieSessions:
+    """Signed-in browser sessions: random ids -> expiry (monotonic clock), in memory."""
+
+    def __init__(self, ttl_s: float = SESSION_TTL_S, max_sessions: int = MAX_SESSIONS) -> None:
+        self.ttl_s, self.max_sessions = ttl_s, max_sessions
+        self._expiry: dict[str, float] = {}
+        self._lock = threading.Lock()
+
+    def issue(self) -> str:
+        sid = secrets.token_urlsafe(32)
+        now = time.monotonic()
+        with self._lock:
+            self._expiry = {k: t for k, t in self._expiry.items() if t > now}
+            while len(self._expiry) >= self.max_sessions:
+                self._expiry.pop(min(self._expiry, key=self._expiry.get))
+            self._expiry[sid] = now + self.ttl_s
+        return sid
+
+    def valid(self, sid: str | None) -> bool:
+        if not sid:
+            return False
+        with self._lock:
+            expiry = self._expiry.get(sid)
+        return expiry is not None and expiry > time.monotonic()
+
+    def revoke(self, sid: str | None) -> None:
+        with self._lock:
+            self._expiry.pop(sid or "", None)
+
+
+def bearer_ok(header: bytes, token: bytes) -> bool:
+    scheme, _, credentials = header.partition(b" ")
+    return scheme.lower() == b"bearer" and hmac.compare_digest(credentials.strip(), token)
+
+
+def token_ok(given: str, token: str) -> bool:
+    return hmac.compare_digest(given.strip().encode(), token.encode())
+
+
+def session_id(cookie_header: bytes | str) -> str | None:
+    """The tmoc_session cookie of a Cookie header, if any."""
+    text = cookie_header.decode("latin-1") if isinstance(cookie_header, bytes) else cookie_header
+    return cookie_parser(text).get(COOKIE) if text else None
+
+
+def authorised(headers: dict[bytes, bytes], token: bytes, sessions: CookieSessions) -> bool:
+    """A valid bearer token, or the cookie of a signed-in session."""
+    return (bearer_ok(headers.get(b"authorization", b""), token)
+            or sessions.valid(session_id(headers.get(b"cookie", b""))))
+
+
+def is_open(path: str) -> bool:
+    return path in OPEN_PATHS or any(path == p or path.startswith(p + "/") for p in OPEN_PREFIXES)
+
+
+async def _send_401(send) -> None:
+    import json
+
+    body = json.dumps({"detail": "missing or invalid token: send Authorization: Bearer <token>, "
+                                 "or sign in at /ui"}).encode()
+    await send({"type": "http.response.start", "status": 401,
+                "headers": [(b"content-type", b"application/json"),
+                            (b"content-length", str(len(body)).encode()),
+                            (b"www-authenticate", b"Bearer")]})
+    await send({"type": "http.response.body", "body": body})
+
+
+class TokenGate:
+    """With a token set: 401 for every path but the open ones unless the request carries
+    the token (bearer) or a signed-in session's cookie, before anything else (the body
+    included) is read or parsed."""
+
+    def __init__(self, app, token: str, sessions: CookieSessions | None = None) -> None:
+        self.app, self.token = app, token.encode()
+        self.sessions = sessions if sessions is not None else CookieSessions()
+
+    async def __call__(self, scope, receive, send):
+        if scope["type"] != "http" or is_open(scope["path"]):
+            return await self.app(scope, receive, send)
+        if not authorised(dict(scope.get("headers", ())), self.token, self.sessions):
+            return await _send_401(send)
+        await self.app(scope, receive, send)
