@@ -32,7 +32,7 @@ from starlette.exceptions import HTTPException as StarletteHTTPException
 from . import dashboard
 from . import frames as frame_routes
 from . import schemas as S
-from .auth import CookieSessions, TokenGate, authorised, bearer_ok  # noqa: F401  (TokenGate, bearer_ok: public here too)
+from .auth import CookieSessions, TokenGate, authorised, bearer_ok, send_json as _send_json  # noqa: F401  (TokenGate, bearer_ok: public here too)
 from .store import TERMINAL, QueueFull, Store
 from .worker import (Notifier, PoolManager, SessionConflict, SessionGone, SessionManager,
                      TaskWorker, new_id, run_config)
@@ -239,14 +239,6 @@ def _count_keys(body: bytes, limit: int) -> int:
     except (ValueError, RecursionError):
         return 0
     return seen
-
-
-async def _send_json(send, status: int, payload: dict, headers: list | None = None) -> None:
-    body = json.dumps(payload).encode()
-    await send({"type": "http.response.start", "status": status,
-                "headers": [(b"content-type", b"application/json"),
-                            (b"content-length", str(len(body)).encode()), *(headers or [])]})
-    await send({"type": "http.response.body", "body": body})
 
 
 class AllowHeader:

@@ -10,6 +10,7 @@ Every gated route accepts either credential. A restart forgets the sessions: sig
 from __future__ import annotations
 
 import hmac
+import json
 import secrets
 import threading
 import time
@@ -82,15 +83,13 @@ def is_open(path: str) -> bool:
     return path in OPEN_PATHS or any(path == p or path.startswith(p + "/") for p in OPEN_PREFIXES)
 
 
-async def _send_401(send) -> None:
-    import json
-
-    body = json.dumps({"detail": "missing or invalid token: send Authorization: Bearer <token>, "
-                                 "or sign in at /ui"}).encode()
-    await send({"type": "http.response.start", "status": 401,
+async def send_json(send, status: int, payload: dict, headers: list | None = None) -> None:
+    """A whole JSON response straight onto the ASGI channel (middleware answers with it
+    before any route runs)."""
+    body = json.dumps(payload).encode()
+    await send({"type": "http.response.start", "status": status,
                 "headers": [(b"content-type", b"application/json"),
-                            (b"content-length", str(len(body)).encode()),
-                            (b"www-authenticate", b"Bearer")]})
+                            (b"content-length", str(len(body)).encode()), *(headers or [])]})
     await send({"type": "http.response.body", "body": body})
 
 
@@ -107,5 +106,7 @@ class TokenGate:
         if scope["type"] != "http" or is_open(scope["path"]):
             return await self.app(scope, receive, send)
         if not authorised(dict(scope.get("headers", ())), self.token, self.sessions):
-            return await _send_401(send)
+            return await send_json(send, 401, {"detail": "missing or invalid token: send Authorization: "
+                                                         "Bearer <token>, or sign in at /ui"},
+                                   [(b"www-authenticate", b"Bearer")])
         await self.app(scope, receive, send)

@@ -90,8 +90,7 @@ def strip_png(panels: list[np.ndarray], titles: list[str], colours: list[str]) -
 class FrameRecorder:
     """Renders a run's frames into a sink; attach as ``session.frames``."""
 
-    def __init__(self, domain: str, options: dict, truth: dict | None, sink: FrameSink,
-                 size_scale: float = 1000.0) -> None:
+    def __init__(self, domain: str, options: dict, truth: dict | None, sink: FrameSink) -> None:
         self.domain_name, self.options = domain, dict(options)
         self.truth = truth
         self.sink = sink
