@@ -24,6 +24,14 @@ printed as ``ratio_vs_static_scene``: a resting scene's contacts converge in a f
 iterations while an action's moving contacts use all 50, so no action can reach it (measured:
 ~57 us/step resting against ~120 us/step inside an action).
 
+Shards leave out of a particle world the bodies an action cannot reach, for the action
+kinds the domain names in ``leave_out_actions`` (``sim_workers/reach.py``); (a) to (d)
+measure what the service runs, leave-out included (the replay removes the same bodies).
+(e) compares, in-process on the same particles, worlds with every body (``leave_out=False``,
+before) and with leave-out (after): steps and milliseconds per particle-action by action
+kind, how many particle-actions the guard sent back to the full world, and whether the
+outcomes agree (symbolic states, largest difference of a measurement).
+
 Also: the cost of one world reset (a rebuild), the share of in-process time spent inside
 ``stepSimulation``, and the RSS of each shard (``Shard.node()``, peak RSS of its process).
 
@@ -122,9 +130,9 @@ def _replay(job) -> float:
 
     from sim_workers import trajectory as tr
 
-    domain_name, start, sizes, traj, t0, counts = job
+    domain_name, start, sizes, traj, t0, counts, action = job
     domain = load(domain_name)
-    world = GroundedWorld(domain)
+    world = GroundedWorld(domain, leave_out=True)
     config = Configuration.from_array(start)
     dt = domain.spec.time_step
     tic = time.perf_counter()
@@ -132,7 +140,11 @@ def _replay(job) -> float:
         world.reset(config, {"block_sizes": row})
         world.skip_to(traj, t0)
         h, c = world.handles, world.client
-        targets = tr.sample(traj, t0 + dt * np.arange(1, n + 1))
+        full = tr.sample(traj, t0 + dt * np.arange(1, int(np.ceil((traj[-1, 0] - t0 + world.settle_s) / dt)) + 1))
+        if world._leaves_out(action):
+            world._leave_out(full)          # the very bodies the shard left out (no guard)
+            world._absent.clear()
+        targets = full[:n, :5]
         for x, y, z, yaw, opening in targets:
             pb.changeConstraint(h.base_constraint, jointChildPivot=[x, y, z + h.palm_offset],
                                 jointChildFrameOrientation=pb.getQuaternionFromEuler([0, 0, yaw]),
@@ -250,6 +262,33 @@ class StepTimer:
         pb.stepSimulation = self._orig
 
 
+def leave_out_table(name_d: str, cases: dict, sizes: np.ndarray, rounds: int) -> dict:
+    """(e): per action, seconds for the batch with every body and with leave-out (best of
+    `rounds`, interleaved), mean steps, guard re-runs, and how far the outcomes differ."""
+    table = {}
+    for name in ACTIONS:
+        start, action, traj, t0 = cases[name]
+        best = {False: np.inf, True: np.inf}
+        for _ in range(rounds):
+            for flag in (False, True):
+                shard = Shard(name_d, None, 1, leave_out=flag)
+                shard.simulate(start, sizes[:2], action, traj, t0)          # warm up
+                tic = time.perf_counter()
+                out = shard.simulate(start, sizes, action, traj, t0)
+                best[flag] = min(best[flag], time.perf_counter() - tic)
+                if flag:
+                    after, reruns = out, shard.worlds[0].reruns
+                else:
+                    before = out
+                shard.close()
+        dmeas = np.abs(after["measurements"] - before["measurements"])
+        table[name] = {"before": best[False], "after": best[True], "steps": before["steps"].mean(),
+                       "steps_total": float(before["steps"].sum()), "reruns": int(reruns),
+                       "same": float(np.mean(after["states"] == before["states"])),
+                       "dmeas": float(np.nanmax(dmeas)) if np.isfinite(dmeas).any() else 0.0}
+    return table
+
+
 def reset_ms(domain, cases, n: int, seed: int) -> float:
     start = cases["push"][0]
     from sim_workers.configuration import Configuration
@@ -304,6 +343,7 @@ def main(argv=None) -> int:
         steps[name] = out["steps"]
     local_node = shard.node()
     shard.close()
+    leave = leave_out_table(name_d, cases, sizes, rounds)
     reset = reset_ms(domain, cases, 100 if args.quick else 300, args.seed + 2)
 
     # (c) raw stepping, 2 processes (before Ray starts, so nothing else competes).
@@ -325,7 +365,7 @@ def main(argv=None) -> int:
     with mp.get_context("spawn").Pool(2) as rp:
         for name in ACTIONS:
             start, action, traj, t0 = cases[name]
-            jobs = [(name_d, start, sizes[h], traj, t0, steps[name][h]) for h in halves]
+            jobs = [(name_d, start, sizes[h], traj, t0, steps[name][h], action) for h in halves]
             best = np.inf
             for _ in range(rounds):
                 tic = time.perf_counter()
@@ -400,6 +440,18 @@ def main(argv=None) -> int:
     print(f"  all     {n_all / rep:>7.1f} pa/s   ray/replay {rep / tot['ray']:.2f}")
     print("  raw x2 steps a resting scene, whose contacts converge in a few solver iterations;")
     print("  an action's moving contacts use all of them, so raw x2 is not reachable by any action.")
+    print("(e) leave-out, in-process, same particles: every body (before) against the bodies the")
+    print("    action can reach (after; sim_workers/reach.py, for the domain's leave_out_actions):")
+    print(f"  {'action':<8}{'steps/pa':>9}{'before ms':>11}{'after ms':>10}{'speed-up':>10}"
+          f"{'us/step':>9}{'->':>3}{'us/step':>8}{'reruns':>8}{'same Y^-1':>11}{'max |dmeas|':>13}")
+    for name in ACTIONS:
+        e = leave[name]
+        print(f"  {name:<8}{e['steps']:>9.0f}{1e3 * e['before'] / batch:>11.2f}{1e3 * e['after'] / batch:>10.2f}"
+              f"{e['before'] / e['after']:>10.2f}{1e6 * e['before'] / e['steps_total']:>9.1f}{'':>3}"
+              f"{1e6 * e['after'] / e['steps_total']:>8.1f}{e['reruns']:>8d}{e['same']:>11.3f}{e['dmeas']:>13.1e}")
+    before, after = (sum(leave[n][k] for n in ACTIONS) for k in ("before", "after"))
+    print(f"  all three actions: {1e3 * before / n_all:.2f} -> {1e3 * after / n_all:.2f} ms per particle-action "
+          f"(x{before / after:.2f})")
     print(f"wall time {time.perf_counter() - t_start:.1f} s")
     # The headline compares with the physical limit of this very work: raw pybullet stepping
     # of the same scene, in the same states, for the same steps, in 2 plain processes (the

@@ -11,11 +11,13 @@ shape, so memory stays flat over any number of resets.
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
 import pybullet as pb
 
+from . import reach
 from . import trajectory as tr
 from .configuration import Configuration, quat_from_yaw, rotate_z, yaw_of
 from .domains import Domain
@@ -53,15 +55,28 @@ class Outcome:
 
 
 class GroundedWorld:
-    """One pybullet DIRECT client holding one scene of `domain`."""
+    """One pybullet DIRECT client holding one scene of `domain`.
 
-    def __init__(self, domain: Domain) -> None:
+    With ``leave_out`` (particle worlds: ``sim_workers.shard.Shard``), the first action after
+    a reset, if its kind is one of the domain's ``leave_out_actions``, runs without the
+    bodies it cannot reach (``sim_workers.reach``), guarded: if a kept body comes near a
+    left-out one, the action is run again in the full world. After such an action the world
+    needs a reset; a world that runs several actions in a row (the simulated robot of
+    ``coordinator.reality``, the physics tests) is built without ``leave_out``.
+    """
+
+    def __init__(self, domain: Domain, *, leave_out: bool = False) -> None:
         self.domain = domain
         self.client = pb.connect(pb.DIRECT)
         self.handles = None
         self.props: dict | None = None
         self._sent_pose = self._sent_q = None
         self._weight: float | None = None
+        self.leave_out = leave_out
+        self._placed: Configuration | None = None      # as reset placed it (for a re-run)
+        self._absent: dict[int, np.ndarray] = {}       # object index -> its pose, left out
+        self._fresh = False                            # no action since the last reset
+        self.reruns = 0                                # actions the guard sent to the full world
         self.settle_s = float(getattr(domain.spec, "settle_s", 1.0))
 
     # -- lifecycle ---------------------------------------------------------------------
@@ -85,12 +100,17 @@ class GroundedWorld:
         self._weight = None
         self.props = props
         placed = self.domain.place(config, props) if place else config
+        self._absent = {}
         self._apply(placed)
+        self._placed, self._fresh = placed, True
         return placed
 
     def _apply(self, config: Configuration) -> None:
         h, c = self.handles, self.client
-        for body, pose in zip(h.objects, config.objects):
+        for i, (body, pose) in enumerate(zip(h.objects, config.objects)):
+            if i in self._absent:
+                self._absent[i] = np.array(pose, dtype=np.float64)
+                continue
             pb.resetBasePositionAndOrientation(body, pose[:3], pose[3:], physicsClientId=c)
             pb.resetBaseVelocity(body, [0, 0, 0], [0, 0, 0], physicsClientId=c)
         self._set_gripper(config.robot, reset=True)
@@ -147,8 +167,9 @@ class GroundedWorld:
         q = [s[0] for s in pb.getJointStates(h.gripper, list(h.fingers), physicsClientId=c)]
         opening = 2.0 * (np.mean(q) - h.finger_inner)
         robot = np.array([pos[0], pos[1], pos[2] - h.palm_offset, yaw_of(np.array(orn)), opening])
-        objects = np.array([np.concatenate(pb.getBasePositionAndOrientation(b, physicsClientId=c))
-                            for b in h.objects])
+        objects = np.array([self._absent[i] if i in self._absent else
+                            np.concatenate(pb.getBasePositionAndOrientation(b, physicsClientId=c))
+                            for i, b in enumerate(h.objects)])
         return Configuration(robot, objects)
 
     def symbolic_state(self) -> frozenset[str]:
@@ -156,7 +177,9 @@ class GroundedWorld:
 
     def at_rest(self) -> bool:
         c = self.client
-        for b in self.handles.objects:
+        for i, b in enumerate(self.handles.objects):
+            if i in self._absent:
+                continue
             lin, ang = pb.getBaseVelocity(b, physicsClientId=c)
             if max(map(abs, lin)) > REST_LINEAR or max(map(abs, ang)) > REST_ANGULAR:
                 return False
@@ -194,6 +217,10 @@ class GroundedWorld:
         h = self.handles
         if h is None:
             raise RuntimeError("world: reset() before execute()")
+        if self._absent:
+            raise RuntimeError("world: bodies were left out of the last action; reset() first")
+        reduce = self.leave_out and self._fresh and self._leaves_out(action)
+        self._fresh = False
         if start_time > 0.0:
             self.skip_to(traj, start_time)
         dt = h.time_step
@@ -201,6 +228,49 @@ class GroundedWorld:
         settle = self.settle_s if max_settle_s is None else max_settle_s
         times = start_time + dt * np.arange(1, int(np.ceil((t_end - start_time + settle) / dt)) + 1)
         targets = tr.sample(traj, times)
+        guard = self._leave_out(targets) if reduce else None
+        outcome, steps = self._run(action, times, targets, t_end, guard)
+        if outcome is None:
+            # Something came near a left-out body: the same action in the full world,
+            # rebuilt exactly as reset() built it (bit-identical to a world without leave_out).
+            self.reruns += 1
+            self.reset(self._placed, self.props, place=False)
+            self._fresh = False
+            if start_time > 0.0:
+                self.skip_to(traj, start_time)
+            outcome, more = self._run(action, times, targets, t_end, None)
+            outcome = Outcome(outcome.configuration, outcome.state, outcome.measurements, steps + more)
+        return outcome
+
+    def _leaves_out(self, action: str) -> bool:
+        """Whether the domain leaves bodies out of this kind of action (its
+        ``leave_out_actions``, chosen by measurement: where the saved contacts outweigh the
+        guard's cost)."""
+        return action.partition("(")[0] in getattr(self.domain, "leave_out_actions", ())
+
+    def _leave_out(self, targets: np.ndarray) -> "_Guard | None":
+        """Remove the objects the action cannot reach (``sim_workers.reach``); None when
+        every object is within reach."""
+        h, c = self.handles, self.client
+        boxes = np.array([reach.body_box(b, c) for b in h.objects])
+        tool = np.array(self._sent_pose[0][:3])
+        opening = float(self._sent_q[0] - h.finger_inner) * 2.0
+        keep = reach.kept_objects(boxes, reach.body_box(h.gripper, c), tool, targets[:, :3],
+                                  widening=float(targets[:, 4].max()) - opening)
+        if keep.all():
+            return None
+        kept = [int(i) for i in np.flatnonzero(keep)]
+        for i in np.flatnonzero(~keep):
+            self._absent[int(i)] = np.concatenate(pb.getBasePositionAndOrientation(h.objects[i], physicsClientId=c))
+            pb.removeBody(h.objects[i], physicsClientId=c)
+        bodies = [h.objects[i] for i in kept]
+        start = np.array([pb.getBasePositionAndOrientation(b, physicsClientId=c)[0] for b in bodies]).reshape(-1, 3)
+        return _Guard(self, bodies, start, reach.radii(start, boxes[kept]), boxes[~keep])
+
+    def _run(self, action: str, times: np.ndarray, targets: np.ndarray, t_end: float,
+             guard: "_Guard | None") -> tuple[Outcome | None, int]:
+        """Step through `targets`; (None, steps) as soon as the guard trips."""
+        h = self.handles
         steps = 0
         # A domain that reads sensors during the action says so; the others pay nothing.
         logging = bool(getattr(self.domain, "logs_sensors", False))
@@ -218,6 +288,8 @@ class GroundedWorld:
             if logging:
                 force.append(pb.getConstraintState(h.base_constraint, physicsClientId=self.client)[:3])
                 opening.append(self._opening())
+            if guard is not None and k % reach.GUARD_EVERY == 0 and guard.tripped(self):
+                return None, steps
             if t > t_end and k % REST_CHECK_EVERY == 0 and self.at_rest():
                 break
         config = self.observe()
@@ -231,7 +303,7 @@ class GroundedWorld:
             meas = self.domain.measurements(config, log, action)
         else:
             meas = self.domain.measurements(config)
-        return Outcome(config, self.domain.symbolic_state(config), meas, steps)
+        return Outcome(config, self.domain.symbolic_state(config), meas, steps), steps
 
     def _guard(self, target: np.ndarray, was_guarded: bool, offset: np.ndarray):
         """A force-limited (guarded) segment ends where the gripper got to, not where its
@@ -251,3 +323,37 @@ class GroundedWorld:
         h = self.handles
         q = [s[0] for s in pb.getJointStates(h.gripper, list(h.fingers), physicsClientId=self.client)]
         return 2.0 * (float(np.mean(q)) - h.finger_inner)
+
+
+class _Guard:
+    """Watches a world with left-out bodies (``sim_workers.reach``): trips when a kept
+    object's ball, or the gripper's box, came within ``reach.GUARD_MARGIN`` of a left-out
+    box and nearer than it started (by ``reach.APPROACH``). One pybullet call per kept
+    object and one per gripper link per check, and plain Python: with a handful of boxes
+    numpy's per-call cost is most of the time."""
+
+    def __init__(self, world: "GroundedWorld", bodies: list[int], start: np.ndarray,
+                 radii: np.ndarray, left_out: np.ndarray) -> None:
+        c = world.client
+        self.client, self.bodies = c, bodies
+        self.radii = [float(r) for r in radii]
+        self.left_out = [tuple(b) for b in left_out.tolist()]
+        gripper = world.handles.gripper
+        self.gripper = [(gripper, link) for link in range(-1, pb.getNumJoints(gripper, physicsClientId=c))]
+        self.start = [d - reach.APPROACH for d in self._clearance()]
+
+    def _clearance(self) -> list[float]:
+        c, out = self.client, []
+        aabbs = [pb.getAABB(b, link, physicsClientId=c) for b, link in self.gripper]
+        lo = [min(a[0][k] for a in aabbs) for k in range(3)]
+        hi = [max(a[1][k] for a in aabbs) for k in range(3)]
+        out.append(min(max(b[0] - hi[0], lo[0] - b[3], b[1] - hi[1], lo[1] - b[4], b[2] - hi[2], lo[2] - b[5])
+                       for b in self.left_out))
+        for body, r in zip(self.bodies, self.radii):
+            x, y, z = pb.getBasePositionAndOrientation(body, physicsClientId=c)[0]
+            out.append(min(math.sqrt(max(b[0] - x, x - b[3], 0.0) ** 2 + max(b[1] - y, y - b[4], 0.0) ** 2
+                                     + max(b[2] - z, z - b[5], 0.0) ** 2) for b in self.left_out) - r)
+        return out
+
+    def tripped(self, world: "GroundedWorld") -> bool:
+        return any(d <= reach.GUARD_MARGIN and d < s for d, s in zip(self._clearance(), self.start))

@@ -34,13 +34,15 @@ class Shard:
     runs in-process (tests, benchmarks, the probe).
     """
 
-    def __init__(self, domain: str = "container", options: dict | None = None, n_worlds: int = 1) -> None:
+    def __init__(self, domain: str = "container", options: dict | None = None, n_worlds: int = 1,
+                 leave_out: bool = True) -> None:
         if n_worlds < 1:
             raise ValueError(f"n_worlds: {n_worlds} must be at least 1")
         # Worlds are built here, inside the process that uses them: a pybullet client id
-        # does not survive pickling.
+        # does not survive pickling. Particle worlds leave out the bodies an action cannot
+        # reach (sim_workers/reach.py; guarded, so outcomes do not depend on it).
         self.domain = load(domain, **(options or {}))
-        self.worlds = [GroundedWorld(self.domain) for _ in range(n_worlds)]
+        self.worlds = [GroundedWorld(self.domain, leave_out=leave_out) for _ in range(n_worlds)]
 
     def simulate(self, start: np.ndarray, sizes: np.ndarray, action: str, trajectory: np.ndarray,
                  start_time=0.0) -> dict:

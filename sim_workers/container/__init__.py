@@ -17,6 +17,11 @@ class ContainerDomain:
     """Blocks, an open container and a floating gripper; L = the blocks' side lengths."""
 
     name = "container"
+    # The action kinds whose particle worlds leave out the bodies they cannot reach
+    # (sim_workers/reach.py): measured in benchmarks/bench_worlds.py, a pickup leaves most of
+    # the scene out and costs less; a stack or a push keeps the pile it acts on, and the
+    # guard's checks cost more than the few bodies left out save.
+    leave_out_actions: tuple[str, ...] = ("pickup",)
     max_blocks = 16
 
     def __init__(self, spec: ContainerSpec | None = None, **overrides) -> None:
