@@ -17,7 +17,7 @@ from sim_workers.grounded_world import GroundedWorld
 from sim_workers.properties import PropertyError
 
 from .domains import Domain, load
-from .session import WORKSPACE
+from .transit import WORKSPACE
 
 
 @dataclass(frozen=True)

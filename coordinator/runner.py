@@ -156,6 +156,8 @@ def result_record(config: RunConfig, session: Session, nodes: list[dict], wall_s
             "truth": config.truth_values(),
             "posterior": post["properties"],
             "transition": T.to_planner(),
+            # actions that moved without a checked transit (episode records say why)
+            "transit_fallbacks": int(sum(e.get("transit_fallbacks", 0) for e in episodes)),
         },
         "runtime": {
             "shards": len(nodes),

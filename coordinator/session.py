@@ -5,30 +5,30 @@
 particle worlds replay the action (one Ray call per shard), the belief is reweighted and
 resampled, the experience pool and T are updated, and the plan is kept or replanned. A
 driver (``run_episode`` with a SimulatedReality, or the HTTP service for a real robot)
-calls the two in turn.
+calls the two in turn. Episode accounting lives in ``coordinator.episode``, the transit
+to the pre-pose in ``coordinator.transit``; the rest (~410 lines) is the loop's steps,
+which share the session's state.
 """
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
-from planner.motion import Bounds, MotionPlanningError, box_checker, plan_approach, plan_transit
 from sim_workers.configuration import Configuration
 from sim_workers.trajectory import columns_of
 
 from .agents import agent as agent_spec
 from .belief import Belief, gaussian_log_likelihood, mode_mask, symbolic_log_likelihood
 from .domains import load as load_domain, property_space
+from .episode import EpisodeStats, utility_terms
 from .experience import ExperiencePool
 from .particle_budget import next_count
 from .reality import Observation
 from .run_config import RunConfig, stored_run_config
+from .transit import plan_pre_pose_transit
 from .transition_model import TransitionModel
-
-WORKSPACE = Bounds(np.array([-0.5, -0.6, 0.0, -np.pi]), np.array([1.2, 0.6, 0.6, np.pi]))
-
 
 @dataclass
 class PendingStep:
@@ -43,22 +43,6 @@ class PendingStep:
         return {"action": self.action, "pose": self.pose.tolist(),
                 "trajectory": self.trajectory.tolist(),
                 "trajectory_columns": list(columns_of(self.trajectory)), "expected": sorted(self.expected)}
-
-
-@dataclass
-class EpisodeStats:
-    utility: float = 0.0
-    actions: int = 0
-    failures: dict = field(default_factory=dict)
-    loads: list = field(default_factory=list)
-    delivered: int = 0
-    plans: list = field(default_factory=list)
-    wall_s: float = 0.0
-    physics_s: float = 0.0
-    planning_s: float = 0.0
-    real_s: float = 0.0
-    transit_fallbacks: list = field(default_factory=list)
-    particle_counts: list = field(default_factory=list)   # particle worlds per action
 
 
 class Session:
@@ -220,37 +204,20 @@ class Session:
                          for row in self.belief.particles])
 
     def _transit(self, config: Configuration, pre: np.ndarray) -> np.ndarray | None:
-        """A collision-free path to the pre-pose among the observed obstacles.
-
-        Tried in order: the straight segment; up, across at a safe height and down (what
-        a pick-and-place robot does, checked segment by segment); OMPL RRT*. None: all
-        failed, and the action uses the default transit (as a real robot would refuse to).
-        """
+        """A collision-free path to the pre-pose among the observed obstacles
+        (``coordinator.transit``). None: every strategy failed, the action uses the
+        domain's default transit unchecked, and the episode record counts the fallback."""
         t0 = time.perf_counter()
         try:
             size = float(np.max(self.believed_sizes()))
             held = size if any(a.startswith("is_holding(") for a in self.state) else 0.0
-            half, dz = self.domain.gripper_box(held)
-            boxes = box_checker(self.domain.obstacles(config, size), gripper_half_extents=half)
-            offset = np.array([0.0, 0.0, dz, 0.0])
-            checker = lambda q: boxes(np.asarray(q) + offset)   # noqa: E731  (box from the tips up)
-            start = config.robot[:4]
-            for waypoints in ([start, pre[:4]], self.domain.default_transit(config.robot, pre)[:, :4]):
-                try:
-                    for a, b in zip(waypoints[:-1], waypoints[1:]):
-                        plan_approach(a, b, checker)        # every segment checked densely
-                    return np.array(waypoints, dtype=np.float64)   # straight segments: ends suffice
-                except MotionPlanningError:
-                    continue
-            # 200 RRT* iterations, at most 600 to find a first path (~0.5 s).
-            workspace = getattr(self.domain, "workspace", WORKSPACE)   # a domain may need more room
-            return plan_transit(start, pre[:4], checker, workspace, seed=int(self.rng.integers(2**31)),
-                                iterations=200, max_iterations=600, shortcut=False, resolution=0.05)
-        except MotionPlanningError as exc:
-            self.stats.transit_fallbacks.append(str(exc)[:200])
-            return None
+            plan = plan_pre_pose_transit(self.domain, config, pre, size, held,
+                                         seed=lambda: int(self.rng.integers(2**31)))
         finally:
             self.stats.planning_s += time.perf_counter() - t0
+        if plan.fallback is not None:
+            self.stats.transit_fallbacks.append(plan.fallback[:200])
+        return plan.path
 
     def next_step(self) -> PendingStep | None:
         """The next action with its pose, trajectory and expected effect (None: episode over)."""
@@ -374,20 +341,7 @@ class Session:
         return symbolic_log_likelihood(flag(observed), [flag(s) for s in predicted], self.config.error_rate)
 
     def _account(self, state, step: PendingStep, next_state, success: bool) -> None:
-        """Realised utility of a step: -cost - fail if it failed, + the domain's reward terms."""
-        c = self.costs
-        name = step.action.split("(", 1)[0]
-        s = self.stats
-        s.actions += 1
-        s.utility -= c[name]
-        if not success:
-            s.utility -= c["fail"]
-            s.failures[name] = s.failures.get(name, 0) + 1
-        reward, metrics = self.task.step_reward(state, step.action, next_state, c)
-        if metrics.get("load") is not None:
-            s.loads.append(metrics["load"])
-        s.delivered += metrics.get("delivered", 0)
-        s.utility += reward
+        self.stats.account(self.costs, self.task, state, step.action, next_state, success)
 
     def posterior(self) -> dict:
         """size_mean/size_std (over the size dimensions), the raw per-dimension mean and
@@ -409,15 +363,8 @@ class Session:
     def _finish_episode(self) -> dict:
         s = self.stats
         s.wall_s = time.perf_counter() - self._t0
-        record = {
-            "episode": self.episode, "utility": s.utility, "actions": s.actions,
-            "failures": dict(s.failures), "loads": list(s.loads), "delivered": s.delivered,
-            "plans": s.plans, "posterior": self.posterior(),
-            "ess": float(self.belief.ess()) if self.belief is not None else None,
-            "wall_s": s.wall_s, "physics_s": s.physics_s, "planning_s": s.planning_s,
-            # particle worlds per action (the adaptive budget's choice; constant when fixed)
-            "particle_actions": int(sum(s.particle_counts)), "particles_per_action": list(s.particle_counts),
-        }
+        record = s.record(self.episode, self.posterior(),
+                          float(self.belief.ess()) if self.belief is not None else None)
         self.episodes.append(record)
         if self.frames is not None:
             self.frames.episode_end(record, self.observation.configuration, self._props(self.believed_row()))
@@ -469,14 +416,3 @@ class Session:
             report = self.observe(obs)
             if "episode" in report:
                 return report["episode"]
-
-
-def utility_terms(task, config: RunConfig) -> dict[str, float]:
-    """The domain's utility terms (action costs, "fail", reward terms), with the values a
-    run set explicitly in `config.costs` (a term the domain does not have is refused by
-    RunConfig's validation)."""
-    terms = dict(task.default_costs)
-    given = config.costs.model_dump()
-    for key in config.costs.model_fields_set | set(config.costs.model_extra or {}):
-        terms[key] = float(given[key])
-    return terms

@@ -77,10 +77,11 @@ def spec_from_args(args):
         raise UsageError(f"NAME: unknown experiment {args.name!r} (known: {', '.join(ex.EXPERIMENTS)})")
     from ..domains import names as domain_names
 
+    entry = ex.REGISTRY[args.name]
     if args.domain is None:
-        args.domain = ex.WEIGHTS_DOMAIN if args.name == "weights" else "container"
+        args.domain = entry.domain
     if args.true_size is None:
-        args.true_size = ex.WEIGHTS_TRUE_SIZE if args.name == "weights" else ex.EXPERIMENT_TRUE_SIZE
+        args.true_size = entry.true_size
     if args.domain not in domain_names():
         raise UsageError(f"--domain: unknown domain {args.domain!r} (known: {', '.join(domain_names())})")
     if args.scale not in ("default", "paper"):

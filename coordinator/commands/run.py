@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 from pathlib import Path
 
 from pydantic import ValidationError
@@ -159,6 +160,9 @@ def main(args) -> int:
         bar.set_postfix(utility=f"{record['utility']:.0f}", size=f"{post['size_mean'] * 1000:.1f}mm",
                         spread=f"{post['size_std'] * 1000:.1f}mm", loads=record["loads"],
                         particles=f"{min(counts)}-{max(counts)}" if min(counts) != max(counts) else counts[0])
+        if record.get("transit_fallbacks"):       # an unchecked transit must not go unnoticed
+            bar.write(f"episode {record['episode']}: {record['transit_fallbacks']} action(s) without a "
+                      f"checked transit: {record['transit_fallback_notes'][0]}", file=sys.stderr)
         bar.update(1)
 
     sink = None

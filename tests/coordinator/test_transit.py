@@ -56,3 +56,19 @@ def test_transit_in_free_space_is_the_straight_segment():
     pre = domain.pre_pose(config, action, domain.action_pose(truth, config, action))
     path = session._transit(config, pre)
     assert len(path) == 2 and _dense_ok(session, config, path)
+
+
+def test_a_transit_that_fails_is_counted_in_the_episode_record():
+    """Every strategy failing (here: a pre-pose inside the pile) leaves the action to the
+    default transit, and the episode record says so: `transit_fallbacks` and the notes."""
+    domain = _session_at(Configuration(np.zeros(5), np.zeros((9, 7)) + [0, 0, 0, 0, 0, 0, 1])).domain
+    config = domain.initial_configuration(domain.true_properties())
+    session = _session_at(config)
+    inside = np.array([*config.objects[1][:3], 0.0, 0.05])        # the first block's centre
+    draws = session.rng.bit_generator.state
+    assert session._transit(config, inside) is None
+    assert session.rng.bit_generator.state != draws               # RRT* was seeded, as before
+    record = session.stats.record(0, session.posterior(), None)
+    assert record["transit_fallbacks"] == 1
+    assert "in collision" in record["transit_fallback_notes"][0]
+    assert record["transit_fallback_notes"][0].endswith("(tried straight, up_across_down, rrtstar)")

@@ -1,4 +1,5 @@
-"""Motion planner: OMPL RRT* transit, checked approaches, shared per-action planning."""
+"""Motion planner: the transit strategy (straight, candidates, OMPL RRT*), RRT* itself,
+checked approaches, the box checker."""
 from __future__ import annotations
 
 import math
@@ -9,11 +10,11 @@ import pytest
 from planner.motion import (
     Bounds,
     MotionPlanningError,
-    TransitReport,
     box_checker,
     interpolate_config,
-    plan_action,
+    path_length,
     plan_approach,
+    plan_rrtstar,
     plan_transit,
     unwrap_yaw,
 )
@@ -56,21 +57,17 @@ def assert_resolution(path: np.ndarray, resolution: float, yaw_weight: float = 0
 
 
 @pytest.fixture(scope="module")
-def wall_plan() -> tuple[np.ndarray, list[TransitReport]]:
-    reports: list[TransitReport] = []
-    path = plan_transit(START, GOAL, wall_checker(), BOUNDS, seed=7, on_report=reports.append, **FAST)
-    return path, reports
+def wall_plan() -> np.ndarray:
+    return plan_rrtstar(START, GOAL, wall_checker(), BOUNDS, seed=7, **FAST)
 
 
-# ----------------------------------------------------------------------------- transit
+# ----------------------------------------------------------------------------- RRT*
 
 
-def test_transit_detours_round_wall_and_is_collision_free(wall_plan):
-    path, reports = wall_plan
+def test_rrtstar_detours_round_wall_and_is_collision_free(wall_plan):
+    path = wall_plan
     chk = wall_checker()
     assert not chk(interpolate_config(START, GOAL, 0.5))  # the straight line is blocked
-    assert len(reports) == 1 and reports[0].method == "rrtstar" and reports[0].exact
-    assert not reports[0].time_cap_hit and reports[0].iterations == FAST["iterations"]
     assert path.dtype == np.float64 and path.ndim == 2 and path.shape[1] == 4
     # exact endpoints, bit for bit
     assert path[0].tobytes() == START.tobytes()
@@ -78,32 +75,32 @@ def test_transit_detours_round_wall_and_is_collision_free(wall_plan):
     assert_path_valid(path, chk)
     assert_resolution(path, 0.01)
     # a real detour: longer than the blocked straight line
-    assert reports[0].path_length > np.linalg.norm(GOAL[:3] - START[:3]) + 0.05
+    assert path_length(path) > np.linalg.norm(GOAL[:3] - START[:3]) + 0.05
 
 
 def test_same_seed_same_path_different_seed_different_path(wall_plan):
-    path, _ = wall_plan
+    path = wall_plan
     chk = wall_checker()
-    other = plan_transit(START, GOAL, chk, BOUNDS, seed=8, **FAST)
-    again = plan_transit(START, GOAL, chk, BOUNDS, seed=7, **FAST)  # after another seed ran
+    other = plan_rrtstar(START, GOAL, chk, BOUNDS, seed=8, **FAST)
+    again = plan_rrtstar(START, GOAL, chk, BOUNDS, seed=7, **FAST)  # after another seed ran
     assert again.shape == path.shape and again.tobytes() == path.tobytes()
     assert other.shape != path.shape or not np.array_equal(other, path)
 
 
 def test_goal_in_obstacle_raises_naming_goal():
     with pytest.raises(MotionPlanningError, match=r"^goal \(x=0\.0000.*\) is in collision"):
-        plan_transit(START, [0.0, 0.0, 0.2, 0.0], wall_checker(), BOUNDS, seed=1)
+        plan_rrtstar(START, [0.0, 0.0, 0.2, 0.0], wall_checker(), BOUNDS, seed=1)
     with pytest.raises(MotionPlanningError, match=r"^start .* is in collision"):
-        plan_transit([0.0, 0.3, 0.3, 0.0], GOAL, wall_checker(), BOUNDS, seed=1)
+        plan_rrtstar([0.0, 0.3, 0.3, 0.0], GOAL, wall_checker(), BOUNDS, seed=1)
 
 
 def test_out_of_bounds_names_the_coordinate():
     with pytest.raises(MotionPlanningError, match=r"^goal .* out of bounds on z \(z=0\.9"):
-        plan_transit(START, [0.3, 0.1, 0.9, 0.0], wall_checker(), BOUNDS, seed=1)
+        plan_rrtstar(START, [0.3, 0.1, 0.9, 0.0], wall_checker(), BOUNDS, seed=1)
     with pytest.raises(MotionPlanningError, match=r"^start .* out of bounds on x .*, y "):
-        plan_transit([-0.7, 0.7, 0.1, 0.0], GOAL, wall_checker(), BOUNDS, seed=1)
+        plan_rrtstar([-0.7, 0.7, 0.1, 0.0], GOAL, wall_checker(), BOUNDS, seed=1)
     # yaw wraps with full-turn bounds: any angle is in bounds
-    path = plan_transit([0.3, 0.3, 0.6, 4.0], [0.3, -0.3, 0.6, -4.0], wall_checker(), BOUNDS, seed=1)
+    path = plan_rrtstar([0.3, 0.3, 0.6, 4.0], [0.3, -0.3, 0.6, -4.0], wall_checker(), BOUNDS, seed=1)
     assert path[0, 3] == 4.0 and path[-1, 3] == -4.0
 
 
@@ -114,7 +111,7 @@ def test_out_of_bounds_names_the_coordinate():
 ])
 def test_malformed_configuration(bad, match):
     with pytest.raises(MotionPlanningError, match=match):
-        plan_transit(bad, GOAL, wall_checker(), BOUNDS, seed=1)
+        plan_rrtstar(bad, GOAL, wall_checker(), BOUNDS, seed=1)
 
 
 def test_no_path_within_budget_is_an_error():
@@ -124,32 +121,13 @@ def test_no_path_within_budget_is_an_error():
             ((0.3, 0.12, 0.1), (0.12, 0.01, 0.11)), ((0.3, -0.12, 0.1), (0.12, 0.01, 0.11))]
     chk = box_checker(cage, gripper_radius=0.02)
     with pytest.raises(MotionPlanningError, match=r"no collision-free path .* within 200 RRT\* iterations"):
-        plan_transit(START, [0.3, 0.0, 0.1, 0.0], chk, BOUNDS, seed=1, iterations=50, max_iterations=200)
-
-
-def test_straight_segment_shortcut_and_yaw_short_way():
-    reports: list[TransitReport] = []
-    start, goal = np.array([-0.3, 0.3, 0.6, 3.0]), np.array([0.3, 0.3, 0.6, -3.0])
-    path = plan_transit(start, goal, wall_checker(), BOUNDS, seed=1, on_report=reports.append)
-    assert reports[0].method == "straight"
-    assert path[0].tobytes() == start.tobytes() and path[-1].tobytes() == goal.tobytes()
-    assert_path_valid(path, wall_checker())
-    assert_resolution(path, 0.01)
-    # 3.0 -> -3.0 turns +0.28 rad through pi, not -6 rad
-    cont = unwrap_yaw(path)
-    assert cont[-1, 3] == pytest.approx(2 * math.pi - 3.0)
-    assert np.all(np.diff(cont[:, 3]) >= 0)
-    # shortcut=False forces RRT* even when the straight line is free
-    reports.clear()
-    plan_transit(start, goal, wall_checker(), BOUNDS, seed=1, shortcut=False,
-                 on_report=reports.append, iterations=50)
-    assert reports[0].method == "rrtstar"
+        plan_rrtstar(START, [0.3, 0.0, 0.1, 0.0], chk, BOUNDS, seed=1, iterations=50, max_iterations=200)
 
 
 def test_bounded_yaw_does_not_wrap_and_rrtstar_works():
     bounds = Bounds(np.array([-0.6, -0.6, 0.0, -1.5]), np.array([0.6, 0.6, 0.8, 1.5]))
     start, goal = np.array([-0.3, 0.0, 0.1, -1.2]), np.array([0.3, 0.1, 0.1, 1.2])
-    path = plan_transit(start, goal, wall_checker(), bounds, seed=3, **FAST)
+    path = plan_rrtstar(start, goal, wall_checker(), bounds, seed=3, **FAST)
     assert path[0].tobytes() == start.tobytes() and path[-1].tobytes() == goal.tobytes()
     assert np.all(path[:, 3] >= -1.5) and np.all(path[:, 3] <= 1.5)
     # without wrapping, yaw moves linearly between waypoints
@@ -157,7 +135,7 @@ def test_bounded_yaw_does_not_wrap_and_rrtstar_works():
         for t in np.linspace(0, 1, 12)[1:-1]:
             assert wall_checker()(a + t * (b - a)), f"segment {i}"
     with pytest.raises(MotionPlanningError, match="out of bounds on yaw"):
-        plan_transit(start, [0.3, 0.1, 0.1, 2.0], wall_checker(), bounds, seed=3)
+        plan_rrtstar(start, [0.3, 0.1, 0.1, 2.0], wall_checker(), bounds, seed=3)
 
 
 def test_validity_callable_errors_propagate():
@@ -171,7 +149,7 @@ def test_validity_callable_errors_propagate():
         return chk(q)
 
     with pytest.raises(RuntimeError, match="collision query died"):
-        plan_transit(START, GOAL, flaky, BOUNDS, seed=1, **FAST)
+        plan_rrtstar(START, GOAL, flaky, BOUNDS, seed=1, **FAST)
 
 
 def test_validity_callable_gets_4_arrays():
@@ -182,14 +160,64 @@ def test_validity_callable_gets_4_arrays():
         seen.append(q)
         return chk(q)
 
-    reports: list[TransitReport] = []
-    plan_transit(START, GOAL, spy, BOUNDS, seed=2, iterations=30, on_report=reports.append)
-    assert reports[0].validity_calls == len(seen)
+    plan_rrtstar(START, GOAL, spy, BOUNDS, seed=2, iterations=30)
     assert seen and all(isinstance(q, np.ndarray) and q.shape == (4,) and q.dtype == np.float64
                         for q in seen[:1000])
 
 
-# ----------------------------------------------------------------------------- approach + action
+# ----------------------------------------------------------------------------- transit strategy
+
+# Over the wall (its top is at z = 0.5): up, across at 0.7, down.
+OVER = np.array([START, [*START[:2], 0.7, 0.0], [*GOAL[:2], 0.7, 3.0], GOAL])
+
+
+class Draws:
+    """A seed source that counts how often it is drawn from."""
+
+    def __init__(self) -> None:
+        self.n = 0
+
+    def __call__(self) -> int:
+        self.n += 1
+        return 7
+
+
+def test_transit_takes_the_straight_segment_when_free_without_drawing_a_seed():
+    start, goal = np.array([-0.3, 0.3, 0.6, 3.0]), np.array([0.3, 0.3, 0.6, -3.0])
+    seed = Draws()
+    plan = plan_transit(start, goal, wall_checker(), BOUNDS, seed=seed, candidates=[("over", OVER)])
+    assert (plan.strategy, plan.fallback, seed.n) == ("straight", None, 0)
+    assert plan.path.tobytes() == np.array([start, goal]).tobytes()
+
+
+def test_transit_tries_candidates_in_order_then_rrtstar():
+    blocked = np.array([START, [0.0, 0.0, 0.2, 0.0], GOAL])          # through the wall
+    seed = Draws()
+    plan = plan_transit(START, GOAL, wall_checker(), BOUNDS, seed=seed,
+                        candidates=[("through", blocked), ("over", OVER)])
+    assert (plan.strategy, plan.fallback, seed.n) == ("over", None, 0)
+    assert plan.path.tobytes() == OVER.tobytes()
+    # No candidate is free: RRT*, seeded from one draw, the same path as plan_rrtstar's.
+    plan = plan_transit(START, GOAL, wall_checker(), BOUNDS, seed=seed, candidates=[("through", blocked)],
+                        **FAST)
+    assert (plan.strategy, plan.fallback, seed.n) == ("rrtstar", None, 1)
+    assert plan.path.tobytes() == plan_rrtstar(START, GOAL, wall_checker(), BOUNDS, seed=7, **FAST).tobytes()
+    # straight=False skips the straight segment even where it is free.
+    free_start, free_goal = np.array([-0.3, 0.3, 0.6, 0.0]), np.array([0.3, 0.3, 0.6, 0.0])
+    plan = plan_transit(free_start, free_goal, wall_checker(), BOUNDS, seed=1, straight=False, iterations=50)
+    assert plan.strategy == "rrtstar"
+
+
+def test_transit_that_finds_nothing_says_why():
+    inside = np.array([0.0, 0.0, 0.2, 0.0])                             # in the wall
+    plan = plan_transit(START, inside, wall_checker(), BOUNDS, seed=1,
+                        candidates=[("over", np.array([START, [*START[:2], 0.7, 0.0], inside]))])
+    assert plan.path is None and plan.strategy == "none"
+    assert plan.fallback.startswith("goal (x=0.0000") and "in collision" in plan.fallback
+    assert plan.fallback.endswith("(tried straight, over, rrtstar)")
+
+
+# ----------------------------------------------------------------------------- approach
 
 
 def test_plan_approach_segment():
@@ -204,54 +232,17 @@ def test_plan_approach_segment():
         plan_approach(pre, pose, block)
 
 
-def test_plan_action_plans_transit_once_and_approaches_per_particle():
-    # a small block hangs under the pre-pose on the -y side: it blocks particle 2's approach
-    hang = ((0.3, 0.05, 0.2), (0.02, 0.02, 0.01))
-    chk = box_checker([WALL, hang], GRIPPER)
-    calls = [0]
 
-    def counted(q: np.ndarray) -> bool:
-        calls[0] += 1
-        return chk(q)
-
-    pre = np.array([0.3, 0.15, 0.3, 0.0])
-    particles = np.array([
-        [0.30, 0.15, 0.10, 0.0],
-        [0.32, 0.16, 0.11, 0.1],
-        [0.30, -0.05, 0.10, 0.0],   # straight line passes through `hang`
-        [0.30, 0.15, -0.05, 0.0],   # below the table bound
-        [0.28, 0.14, 0.09, -0.1],
-    ])
-    reports: list[TransitReport] = []
-    transit, approaches = plan_action(START, pre, particles, counted, BOUNDS, seed=5,
-                                      on_report=reports.append, **FAST)
-    # one transit planning run (one RRT*) for the whole action
-    assert len(reports) == 1 and reports[0].method == "rrtstar"
-    transit_calls = reports[0].validity_calls
-    assert transit[0].tobytes() == START.tobytes() and transit[-1].tobytes() == pre.tobytes()
-    assert_path_valid(transit, chk)
-    assert len(approaches) == len(particles)
-    assert approaches[2] is None and approaches[3] is None
-    for i in (0, 1, 4):
-        seg = approaches[i]
-        assert seg is not None
-        assert seg[0].tobytes() == pre.tobytes() and seg[-1].tobytes() == particles[i].tobytes()
-        assert_path_valid(seg, chk)
-    # the approaches are short checks, not new searches: a few dozen calls per particle
-    approach_calls = calls[0] - transit_calls
-    assert 0 < approach_calls < 60 * len(particles) < transit_calls
-    # deterministic as a whole
-    transit2, approaches2 = plan_action(START, pre, particles, chk, BOUNDS, seed=5, **FAST)
-    assert transit2.tobytes() == transit.tobytes()
-    assert all((a is None and b is None) or a.tobytes() == b.tobytes()
-               for a, b in zip(approaches, approaches2))
-
-
-def test_plan_action_rejects_bad_particles():
-    with pytest.raises(MotionPlanningError, match=r"particle_poses must have shape \(N, 4\)"):
-        plan_action(START, GOAL, np.zeros((3, 3)), wall_checker(), BOUNDS, seed=1)
-    with pytest.raises(MotionPlanningError, match="row 1 is not"):
-        plan_action(START, GOAL, np.array([GOAL, [np.inf, 0, 0, 0]]), wall_checker(), BOUNDS, seed=1)
+def test_approach_turns_yaw_the_short_way():
+    start, goal = np.array([-0.3, 0.3, 0.6, 3.0]), np.array([0.3, 0.3, 0.6, -3.0])
+    path = plan_approach(start, goal, wall_checker())
+    assert path[0].tobytes() == start.tobytes() and path[-1].tobytes() == goal.tobytes()
+    assert_path_valid(path, wall_checker())
+    assert_resolution(path, 0.01)
+    # 3.0 -> -3.0 turns +0.28 rad through pi, not -6 rad
+    cont = unwrap_yaw(path)
+    assert cont[-1, 3] == pytest.approx(2 * math.pi - 3.0)
+    assert np.all(np.diff(cont[:, 3]) >= 0)
 
 
 # ----------------------------------------------------------------------------- checker + bounds

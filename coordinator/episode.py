@@ -1,0 +1,66 @@
+"""Episode accounting: the realised utility of every step and the per-episode record
+(what result.json, run files, checkpoints and the HTTP API carry for an episode)."""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from .run_config import RunConfig
+
+
+@dataclass
+class EpisodeStats:
+    """What one episode did so far: utility, actions, failures, loads, timings, particle
+    worlds per action and the transit fallbacks (actions moved without a checked transit)."""
+
+    utility: float = 0.0
+    actions: int = 0
+    failures: dict = field(default_factory=dict)
+    loads: list = field(default_factory=list)
+    delivered: int = 0
+    plans: list = field(default_factory=list)
+    wall_s: float = 0.0
+    physics_s: float = 0.0
+    planning_s: float = 0.0
+    real_s: float = 0.0
+    transit_fallbacks: list = field(default_factory=list)
+    particle_counts: list = field(default_factory=list)   # particle worlds per action
+
+    def account(self, costs: dict, task, state, action: str, next_state, success: bool) -> None:
+        """Realised utility of a step: -cost - fail if it failed, + the domain's reward terms."""
+        name = action.split("(", 1)[0]
+        self.actions += 1
+        self.utility -= costs[name]
+        if not success:
+            self.utility -= costs["fail"]
+            self.failures[name] = self.failures.get(name, 0) + 1
+        reward, metrics = task.step_reward(state, action, next_state, costs)
+        if metrics.get("load") is not None:
+            self.loads.append(metrics["load"])
+        self.delivered += metrics.get("delivered", 0)
+        self.utility += reward
+
+    def record(self, episode: int, posterior: dict, ess: float | None) -> dict:
+        """The episode's record (JSON-able), given the posterior and ESS at its end."""
+        return {
+            "episode": episode, "utility": self.utility, "actions": self.actions,
+            "failures": dict(self.failures), "loads": list(self.loads), "delivered": self.delivered,
+            "plans": self.plans, "posterior": posterior, "ess": ess,
+            "wall_s": self.wall_s, "physics_s": self.physics_s, "planning_s": self.planning_s,
+            # particle worlds per action (the adaptive budget's choice; constant when fixed)
+            "particle_actions": int(sum(self.particle_counts)),
+            "particles_per_action": list(self.particle_counts),
+            # actions that moved without a checked transit (every strategy failed), and why
+            "transit_fallbacks": len(self.transit_fallbacks),
+            "transit_fallback_notes": list(self.transit_fallbacks),
+        }
+
+
+def utility_terms(task, config: RunConfig) -> dict[str, float]:
+    """The domain's utility terms (action costs, "fail", reward terms), with the values a
+    run set explicitly in `config.costs` (a term the domain does not have is refused by
+    RunConfig's validation)."""
+    terms = dict(task.default_costs)
+    given = config.costs.model_dump()
+    for key in config.costs.model_fields_set | set(config.costs.model_extra or {}):
+        terms[key] = float(given[key])
+    return terms

@@ -1,0 +1,177 @@
+"""T*: the *true* transition model, for judging whether a plan is optimal.
+
+It is estimated once from the true world with seeded ``sim_workers.probe`` trials
+(believed size = true size) and cached in ``DIR/true_T.json``; see
+``true_T_from_probes``. ``Optimality`` then judges a plan's load split against the
+planner's optimum under T*.
+"""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Callable, Sequence
+
+from .catalogue import WEIGHTS_TRUE_DENSITY, Spec
+from .runfiles import jsonable, write_atomic
+
+
+def probe_jobs(n_blocks: int, domain: str = "container") -> list[tuple[str, int]]:
+    """(action, load) of every probe T* needs: pickup; stack of the first k blocks, k =
+    1..n; push with k blocks loaded, k = 1..n. A domain with other probe semantics says
+    so in its physics half (`t_star_probe_jobs`)."""
+    custom = _t_star_hooks(domain)[0]
+    if custom is not None:
+        return custom(n_blocks)
+    return ([("pickup", 1)] + [("stack", k) for k in range(1, n_blocks + 1)]
+            + [("push", k) for k in range(1, n_blocks + 1)])
+
+
+def _t_star_hooks(domain: str):
+    """(probe_jobs, from_probes) of a domain's physics half, or (None, None): the container's."""
+    if domain == "container":
+        return None, None
+    from sim_workers.domains import load
+
+    phys = load(domain)
+    return getattr(phys, "t_star_probe_jobs", None), getattr(phys, "t_star_from_probes", None)
+
+
+def true_T_from_probes(successes: dict[tuple[str, int], int], trials: int, n_blocks: int) -> dict:
+    """T* in the planner's form from probe success counts.
+
+    pickup: its success rate. push[k-1]: the rate of a push with k blocks loaded.
+    stack[h] (h blocks already in the container): a stack probe of k blocks succeeds when
+    all k pickups and stacks do, and trial t of every k replays the same seeded world, so
+    S(h+1) / S(h) (S(0) = trials) is the rate of "pick up, then stack on h"; dividing by
+    the pickup rate leaves the stack's (clipped to [0, 1]). A height no trial reached
+    (S(h) = 0) gets 0: never seen to succeed.
+    """
+    p_pickup = successes[("pickup", 1)] / trials
+    S = [trials] + [successes[("stack", k)] for k in range(1, n_blocks + 1)]
+    stack = []
+    for h in range(n_blocks):
+        if S[h] == 0 or p_pickup == 0:
+            stack.append(0.0)
+        else:
+            stack.append(float(min(1.0, S[h + 1] / S[h] / p_pickup)))
+    push = [successes[("push", k)] / trials for k in range(1, n_blocks + 1)]
+    return {"pickup": float(p_pickup), "stack": stack, "push": [float(p) for p in push]}
+
+
+def t_star_params(spec: Spec, n_blocks: int = 8) -> dict:
+    """The probe parameters of `spec`'s T* (also the key of its cache)."""
+    params = {"true_size": spec.true_size, "n_blocks": n_blocks, "trials": spec.probe_trials,
+              "seed": spec.probe_seed}
+    if spec.domain != "container":          # (cached container estimates stay valid)
+        params["domain"] = spec.domain
+    if spec.name == "weights":              # T* of the heavy blocks, Y at the true mass
+        params["options"] = {"density": WEIGHTS_TRUE_DENSITY, "force_from_mass": True}
+    return params
+
+
+def cached_true_T(out: Path, params: dict) -> dict | None:
+    """The cached T* in out/true_T.json if it was made with these parameters."""
+    path = Path(out) / "true_T.json"
+    if not path.exists():
+        return None
+    try:
+        data = json.loads(path.read_text())
+    except (OSError, ValueError):
+        return None
+    return data if data.get("params") == jsonable(params) else None
+
+
+def _probe_remote():
+    import ray
+    from sim_workers.probe import probe
+
+    @ray.remote(num_cpus=1)
+    def probe_task(action: str, true_size: float, load_k: int, trials: int, seed: int,
+                   n_blocks: int, domain: str = "container", options: dict | None = None) -> int:
+        return probe(action, true_size, true_size, load_k, trials, seed, n_blocks,
+                     domain=domain, options=options).successes
+
+    return probe_task
+
+
+def submit_probes(params: dict) -> list:
+    """Submit every probe of T* as a Ray task (one CPU each); refs in probe_jobs order."""
+    task = _probe_remote()
+    domain = params.get("domain", "container")
+    return [task.remote(a, params["true_size"], k, params["trials"], params["seed"], params["n_blocks"],
+                        domain, params.get("options"))
+            for a, k in probe_jobs(params["n_blocks"], domain)]
+
+
+def write_true_T(out: Path, params: dict, counts: Sequence[int]) -> dict:
+    """T* from the probes' success `counts` (probe_jobs order), cached in out/true_T.json."""
+    domain = params.get("domain", "container")
+    jobs = probe_jobs(params["n_blocks"], domain)
+    successes = dict(zip(jobs, (int(c) for c in counts)))
+    from_probes = _t_star_hooks(domain)[1] or true_T_from_probes
+    data = {"params": jsonable(params),
+            "transition": from_probes(successes, params["trials"], params["n_blocks"]),
+            "successes": {f"{a}:{k}": successes[(a, k)] for a, k in jobs},
+            "method": " ".join((from_probes.__doc__ or "").split())}
+    write_atomic(Path(out) / "true_T.json", json.dumps(data, indent=2))
+    return data
+
+
+def true_transition(out: Path, params: dict,
+                    executor: Callable[[dict], Sequence[int]] | None = None) -> tuple[dict, bool]:
+    """(T* record, was_cached): the cached out/true_T.json, or estimated by `executor`
+    (default: the probes as Ray tasks) and cached."""
+    cached = cached_true_T(out, params)
+    if cached is not None:
+        return cached, True
+    if executor is None:
+        import ray
+
+        executor = lambda p: ray.get(submit_probes(p))
+    return write_true_T(out, params, executor(params)), False
+
+
+def load_actions(loads: Sequence[int]) -> list[str]:
+    """The container plan that carries `loads` blocks per trip (blocks in order)."""
+    actions, b = [], 1
+    for i, k in enumerate(loads):
+        for _ in range(k):
+            actions += [f"pickup(r,b{b},init)", f"stack(r,b{b},c)"]
+            b += 1
+        actions.append("push(r,c,init,goal)")
+        if i < len(loads) - 1:
+            actions.append("push(r,c,goal,init)")
+    return actions
+
+
+class Optimality:
+    """Is a plan's load split an expected-utility optimum under T*? A split is optimal when
+    its expected utility equals the planner's optimum (ties count: 5+3 and 3+5 are worth
+    the same, and so may other splits be)."""
+
+    def __init__(self, transition: dict, costs: dict, n_blocks: int, domain: str = "container") -> None:
+        from ..domains import task_half
+
+        self.task = task_half(domain)
+        self.T, self.costs, self.n_blocks = transition, costs, n_blocks
+        self.state = self.task.initial_state(n_blocks)
+        best = self.task.plan(self.state, transition, costs)
+        self.best_loads = list(best.loads)
+        self.best_value = float(best.expected_utility)
+        self._actions_for = getattr(self.task, "actions_for_loads", None) \
+            or (lambda n, loads: load_actions(loads))
+        self._cache: dict[tuple[int, ...], bool] = {}
+
+    def value(self, loads: Sequence[int]) -> float:
+        return self.task.expected_utility(self.state, self._actions_for(self.n_blocks, loads),
+                                          self.T, self.costs)
+
+    def __call__(self, loads: Sequence[int]) -> bool | None:
+        key = tuple(int(k) for k in loads)
+        if sum(key) != self.n_blocks or any(k < 1 for k in key):
+            return None if not key else False
+        if key not in self._cache:
+            tol = 1e-6 * max(1.0, abs(self.best_value))
+            self._cache[key] = abs(self.value(key) - self.best_value) <= tol
+        return self._cache[key]
+

@@ -1,0 +1,49 @@
+"""The loop's transit to a pre-pose: the domain says what is in the way and which paths to
+try, ``planner.motion.plan_transit`` tries them (straight, the domain's candidates, RRT*).
+
+A domain's physics half supplies ``obstacles(config, size)`` and ``gripper_box(held)``
+(the box the check moves), and its candidate paths: ``transit_candidates(robot, pre)`` ->
+``[(name, waypoints (M, 4))]`` when it has one, else its ``default_transit`` (up, across
+at a safe height, down) as the one candidate ``"up_across_down"``.
+"""
+from __future__ import annotations
+
+from typing import Callable
+
+import numpy as np
+
+from planner.motion import Bounds, Transit, box_checker, plan_transit
+from sim_workers.configuration import Configuration
+
+WORKSPACE = Bounds(np.array([-0.5, -0.6, 0.0, -np.pi]), np.array([1.2, 0.6, 0.6, np.pi]))
+# 200 RRT* iterations, at most 600 to find a first path (~0.5 s); a coarse output path
+# (the trajectory interpolates between waypoints anyway).
+RRT_ITERATIONS, RRT_MAX_ITERATIONS, RRT_RESOLUTION = 200, 600, 0.05
+
+
+def transit_checker(domain, config: Configuration, size: float, held: float) -> Callable[[np.ndarray], bool]:
+    """is_valid(q) for the gripper at q among the domain's obstacles in `config` (blocks of
+    `size`), with a block of size `held` in the hand (0: none)."""
+    half, dz = domain.gripper_box(held)
+    boxes = box_checker(domain.obstacles(config, size), gripper_half_extents=half)
+    offset = np.array([0.0, 0.0, dz, 0.0])
+    return lambda q: boxes(np.asarray(q) + offset)   # q is at the fingertips: the box sits above
+
+
+def transit_candidates(domain, robot: np.ndarray, pre: np.ndarray) -> list[tuple[str, np.ndarray]]:
+    """The domain's candidate paths from `robot` to `pre`, (name, (M, 4) waypoints) each."""
+    own = getattr(domain, "transit_candidates", None)
+    if own is not None:
+        return [(str(name), np.asarray(w)[:, :4]) for name, w in own(robot, pre)]
+    return [("up_across_down", domain.default_transit(robot, pre)[:, :4])]
+
+
+def plan_pre_pose_transit(domain, config: Configuration, pre: np.ndarray, size: float, held: float,
+                          seed: Callable[[], int]) -> Transit:
+    """The transit from the robot in `config` to `pre` (see ``planner.motion.plan_transit``;
+    `seed` is drawn only if RRT* runs)."""
+    return plan_transit(config.robot[:4], pre[:4], transit_checker(domain, config, size, held),
+                        getattr(domain, "workspace", WORKSPACE), seed=seed,   # a domain may need more room
+                        candidates=transit_candidates(domain, config.robot, pre),
+                        iterations=RRT_ITERATIONS, max_iterations=RRT_MAX_ITERATIONS,
+                        resolution=RRT_RESOLUTION)
