@@ -72,7 +72,12 @@ def cluster_nodes() -> list[dict]:
 
 def plan_shards(nodes: list[dict], n_shards: int | None = None) -> list[str]:
     """The node of every shard: one per CPU of each node (`n_shards` None), else `n_shards`
-    dealt over the nodes' CPUs in turn (node A's 1st CPU, node B's 1st, A's 2nd, ...)."""
+    dealt over the nodes' CPUs in turn (node A's 1st CPU, node B's 1st, A's 2nd, ...).
+
+    >>> nodes = [{"node_id": "A", "cpus": 2}, {"node_id": "B", "cpus": 1}]
+    >>> plan_shards(nodes), plan_shards(nodes, n_shards=4)
+    (['A', 'B', 'A'], ['A', 'B', 'A', 'A'])
+    """
     slots = [n["node_id"] for k in range(max((n["cpus"] for n in nodes), default=0))
              for n in nodes if n["cpus"] > k]
     if not slots or n_shards is None:
@@ -93,6 +98,24 @@ class ShardPool:
 
     Each actor reserves `num_cpus` of Ray's CPU resource (a long-lived service that keeps
     pools for several scenes at once gives each a fraction, so they never starve each other).
+
+    In-process (no Ray): one pickup simulated under two beliefs of the blocks' size, the
+    true 45 mm and a too small 34 mm (whose grasp misses):
+
+    >>> from sim_workers.domains import load
+    >>> physics = load("container")
+    >>> truth = physics.true_properties()
+    >>> config = physics.initial_configuration(truth)
+    >>> action = "pickup(r,b3,init)"
+    >>> trajectory = physics.action_trajectory(config, action, physics.action_pose(truth, config, action))
+    >>> pool = ShardPool("container", n_shards=0)
+    >>> out = pool.simulate(config.to_array(), np.array([[0.045] * 8, [0.034] * 8]), action,
+    ...                     trajectory, start_time=float(trajectory[3, 0]))
+    >>> sorted(out)
+    ['configurations', 'measurements', 'nodes', 'reruns', 'states', 'steps']
+    >>> ["is_holding(r,b3)" in state for state in out["states"]], out["reruns"], pool.n_shards
+    ([True, False], 0, 1)
+    >>> pool.close()
     """
 
     def __init__(self, domain: str = "container", options: dict | None = None,

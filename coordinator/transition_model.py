@@ -146,7 +146,14 @@ class TransitionModel:
 
     def observe_transition(self, state: frozenset[str], action: str, success: bool,
                            weight: float = 1.0) -> None:
-        """``observe`` with the context read off the state; unlearned actions are skipped."""
+        """``observe`` with the context read off the state; unlearned actions are skipped.
+
+        >>> full = frozenset({"at_container(b1,c)", "at_container(b2,c)"})
+        >>> t = TransitionModel(n_blocks=2)
+        >>> t.observe_transition(full, "push(r,c,init,goal)", success=False)   # context push 2
+        >>> t.probability_of(full, "push(r,c,init,goal)"), t.probability_of(full, "push(r,c,goal,init)")
+        (0.5, 1.0)
+        """
         ctx = self.context_fn(state, action)
         if ctx is not None:
             self.observe(ctx[0], ctx[1], success, weight)
@@ -216,6 +223,16 @@ class TransitionModel:
         as ``sim_weight`` trials in all. ``sim_weight = 0`` learns from real experience
         only (the TMP-RL baseline). Default 1: the belief's predicted outcome distribution
         counts as much as one real trial.
+
+        >>> from coordinator.experience import ExperiencePool
+        >>> full, one = frozenset({"at_container(b1,c)", "at_container(b2,c)"}), frozenset({"at_container(b1,c)"})
+        >>> pool = ExperiencePool()
+        >>> pool.add_real(full, "push(r,c,init,goal)", one, full)          # a block fell
+        >>> pool.add_simulated(full, "push(r,c,init,goal)", [full, one], full, np.array([0.75, 0.25]))
+        >>> round(TransitionModel.from_experience(pool, 2).probability("push", 2), 4)   # (0 + 0.75 + 1) / (1 + 1 + 1)
+        0.5833
+        >>> TransitionModel.from_experience(pool, 2, sim_weight=0).probability("push", 2)
+        0.5
         """
         if not (sim_weight >= 0 and math.isfinite(sim_weight)):
             raise ValueError(f"sim_weight: must be finite and >= 0, got {sim_weight}")

@@ -61,6 +61,7 @@ def test_without_a_token_only_loopback_unless_insecure(monkeypatch):
     (["--max-particles", "0"], "--max-particles"),
     (["--port", "70000"], "--port"),
 ])
+@pytest.mark.slow          # a `tmoc serve` process per case
 def test_serve_refuses_bad_flags_with_exit_code_2(tmp_path, argv, needle):
     env = {k: v for k, v in os.environ.items() if k != "TMOC_API_TOKEN"}
     out = subprocess.run([*tmoc(), "serve", "--db",
@@ -70,6 +71,7 @@ def test_serve_refuses_bad_flags_with_exit_code_2(tmp_path, argv, needle):
     assert needle in out.stderr and "Traceback" not in out.stderr, out.stderr
 
 
+@pytest.mark.slow          # a second `tmoc serve` process
 def test_a_second_server_on_the_same_database_is_refused(server):
     env = {k: v for k, v in os.environ.items() if k != "TMOC_API_TOKEN"}
     out = subprocess.run([*tmoc(), "serve", "--db", str(server.db),

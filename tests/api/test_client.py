@@ -13,6 +13,9 @@ from api.client import TMOCClient, TMOCError
 
 from .conftest import TOKEN, Server
 
+# Slow: real tasks on a served Ray. Timeout: the robot-loop example's subprocess may take its 600 s.
+pytestmark = [pytest.mark.slow, pytest.mark.timeout(720)]
+
 REPO = Path(__file__).resolve().parents[2]
 TINY = {"agent": "tmoc", "particles": 3, "episodes": 2, "max_steps": 3, "seed": 4}
 

@@ -4,8 +4,12 @@ bearer header; the dashboard's shell is open; /ui/logout revokes the cookie."""
 from __future__ import annotations
 
 import httpx
+import pytest
 
 from .conftest import TOKEN, parse_sse
+
+# Slow: real tasks on a served Ray. Timeout: a task's event stream may take its 300 s after the server's start.
+pytestmark = [pytest.mark.slow, pytest.mark.timeout(420)]
 
 
 def test_the_shell_is_open_and_the_data_is_not(server):

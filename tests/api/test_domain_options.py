@@ -5,7 +5,12 @@ from __future__ import annotations
 
 import math
 
+import pytest
+
 from .conftest import stream_events
+
+# Slow: real tasks on a served Ray. Timeout: a task's event stream (180 s) after the shared server's start (90 s).
+pytestmark = [pytest.mark.slow, pytest.mark.timeout(300)]
 
 HEAVY_TASK = {"domain": "stack_and_push", "agent": "tmoc", "particles": 4, "episodes": 1, "max_steps": 4,
               "seed": 2, "true_size": 0.045, "truth": {"density": 2400.0},

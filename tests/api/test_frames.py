@@ -8,8 +8,12 @@ import json
 import subprocess
 
 import numpy as np
+import pytest
 
 from .conftest import Server, tmoc, wait_for
+
+# Slow: real tasks on a served Ray. Timeout: a served task's wait and the `tmoc run --frames` subprocess may take 600 s.
+pytestmark = [pytest.mark.slow, pytest.mark.timeout(720)]
 
 # 8 blocks of 45 mm: the first episode's one-trip push of 8 topples (a failed action).
 SPEC = {"particles": 4, "episodes": 2, "n_blocks": 8, "seed": 1, "max_steps": 40}

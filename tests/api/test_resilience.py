@@ -22,6 +22,9 @@ from coordinator.reality import SimulatedReality
 
 from .conftest import Server, free_port, stream_events, tmoc, wait_for
 
+# Slow: real tasks on a served Ray. Timeout: own servers (90 s to start) and event streams of up to 240 s.
+pytestmark = [pytest.mark.slow, pytest.mark.timeout(600)]
+
 TINY = {"agent": "tmoc", "particles": 3, "episodes": 2, "max_steps": 3, "seed": 1}
 
 

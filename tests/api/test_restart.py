@@ -9,10 +9,14 @@ from __future__ import annotations
 import sqlite3
 
 import numpy as np
+import pytest
 
 from coordinator.reality import SimulatedReality
 
 from .conftest import Server, stream_events, wait_for
+
+# Slow: real tasks on a served Ray. Timeout: two server starts (90 s each) and up to three event streams.
+pytestmark = [pytest.mark.slow, pytest.mark.timeout(600)]
 
 SPEC = {"agent": "tmoc", "particles": 3, "episodes": 5, "max_steps": 3, "seed": 5}
 TIMINGS = ("wall_s", "physics_s", "planning_s")

@@ -20,8 +20,12 @@ import sys
 from pathlib import Path
 
 import httpx
+import pytest
 
 from .conftest import TOKEN, Server
+
+# Slow: fuzzing a served API. Timeout: the server's start (90 s) and the schemathesis subprocess (400 s).
+pytestmark = [pytest.mark.slow, pytest.mark.timeout(600)]
 
 
 def test_schemathesis_finds_no_server_errors_and_no_schema_violations(tmp_path):

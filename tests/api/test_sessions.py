@@ -11,6 +11,9 @@ from coordinator.reality import SimulatedReality
 
 from .conftest import stream_events
 
+# Slow: real tasks on a served Ray. Timeout: a task's event stream (180 s) after the shared server's start (90 s).
+pytestmark = [pytest.mark.slow, pytest.mark.timeout(300)]
+
 TRUE_SIZE = 0.050
 PRIOR_STD = (0.060 - 0.030) / np.sqrt(12)
 

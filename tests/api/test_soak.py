@@ -25,7 +25,7 @@ from .conftest import Server, stream_events
 SOAK_S = float(os.environ.get("TMOC_SOAK_S", "150"))
 TASK = {"agent": "tmoc", "particles": 2, "episodes": 1, "max_steps": 2, "seed": 1}
 
-pytestmark = pytest.mark.timeout(int(SOAK_S) + 400)
+pytestmark = [pytest.mark.slow, pytest.mark.timeout(int(SOAK_S) + 400)]
 
 
 def _fds(pid: int) -> tuple[int, int]:

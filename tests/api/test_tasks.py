@@ -5,8 +5,12 @@ import asyncio
 import math
 
 import httpx
+import pytest
 
 from .conftest import stream_events, wait_for
+
+# Slow: real tasks on a served Ray. Timeout: the accepted tasks' wait (240 s) after the shared server's start (90 s).
+pytestmark = [pytest.mark.slow, pytest.mark.timeout(360)]
 
 TINY = {"agent": "tmoc", "particles": 3, "episodes": 2, "max_steps": 3, "seed": 1}
 

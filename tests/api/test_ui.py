@@ -12,6 +12,10 @@ import pytest
 
 from .conftest import TOKEN, Server
 
+# Timeout: the server's start (90 s) and the page waits in turn, the longest the task's
+# first episode (240 s) and its end (400 s).
+pytestmark = [pytest.mark.slow, pytest.mark.browser, pytest.mark.timeout(900)]
+
 CHROMIUM = Path("/usr/bin/chromium")
 CHROMEDRIVER = Path("/usr/bin/chromedriver")
 # Without the background-networking flags Chromium hangs on a closed network.

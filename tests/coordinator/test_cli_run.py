@@ -30,6 +30,7 @@ def test_non_numeric_particles_is_an_argparse_error(capsys):
     assert exc.value.code == 2 and "--particles" in capsys.readouterr().err
 
 
+@pytest.mark.slow          # the session's Ray
 def test_a_tiny_run_writes_result_json_and_curve_png(ray_cluster, tmp_path, capsys):
     code = main(["run", "--particles", "4", "--episodes", "2", "--max-steps", "3", "--seed", "2",
                  "--out", str(tmp_path), "--no-progress"])

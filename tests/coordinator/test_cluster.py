@@ -21,6 +21,9 @@ from coordinator.fanout import plan_shards
 HERE = Path(__file__).resolve().parent
 REPO = HERE.parents[1]
 
+# The scenarios' subprocess may take its 420 s inside the first test's setup.
+pytestmark = [pytest.mark.slow, pytest.mark.cluster, pytest.mark.timeout(600)]
+
 
 @pytest.fixture(scope="module")
 def scenarios(neutral_cwd):

@@ -135,6 +135,7 @@ def sensed():
     return {sigma: _one_episode(sigma) for sigma in (0.1, 3.5)}
 
 
+@pytest.mark.slow
 def test_a_fine_wrist_sensor_learns_the_density(sensed):
     """12 actions (five pickups) with a 0.1 N sensor: the density within 20 % of the
     truth, the size within 3 mm; `summary.posterior` says so in its units."""
@@ -144,6 +145,7 @@ def test_a_fine_wrist_sensor_learns_the_density(sensed):
     assert post["density"]["unit"] == "kg/m^3" and post["size"]["unit"] == "m"
 
 
+@pytest.mark.slow
 def test_a_coarse_sensor_leaves_the_density_posterior_wider():
     """One real pickup of a heavy block, replayed in 48 prior particle worlds, and the
     Bayes update of the opening and the held weight at both sensor noises: with 0.1 N the
@@ -191,6 +193,8 @@ def _heavy_run(agent: str, particles: int) -> dict:
     return run(cfg, pool=ShardPool(cfg.domain, {"n_blocks": 8, **cfg.options}, n_shards=0))
 
 
+@pytest.mark.slow
+@pytest.mark.timeout(300)          # 66 s measured on 2 loaded cores
 def test_learning_the_density_beats_the_prior_mean_mass_on_heavy_blocks():
     """Heavy blocks (2400 kg/m^3) of the prior-mean size: TMP-RL grips and pushes for the
     prior-mean mass (1650) and keeps failing stacks on the carry and pushes; TMOC learns

@@ -23,6 +23,7 @@ def test_the_built_in_domains_are_registered():
     assert set(domains.BUILTIN) <= set(NAMES)
 
 
+@pytest.mark.slow          # the session's Ray (the --no-ray checks stay fast, below)
 @pytest.mark.parametrize("name", NAMES)
 def test_every_domain_passes_the_conformance_checks(name, ray_cluster):
     results = check_domain(name)

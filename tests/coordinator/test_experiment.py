@@ -117,6 +117,8 @@ def tiny_out(ray_cluster, tmp_path_factory):
     return out
 
 
+@pytest.mark.slow
+@pytest.mark.timeout(300)          # the first one runs every experiment (tiny_out: 45 s measured under load)
 @pytest.mark.parametrize("name", ex.EXPERIMENTS)
 def test_every_experiment_writes_png_csv_json(tiny_out, name):
     summary = json.loads((tiny_out / f"{name}.json").read_text())
@@ -170,6 +172,8 @@ def test_every_experiment_writes_png_csv_json(tiny_out, name):
         assert {r["optimal_plan"] for r in rows if r["setting"] != "equal"} == {""}
 
 
+@pytest.mark.slow
+@pytest.mark.timeout(300)          # the first one runs every experiment (tiny_out: 45 s measured under load)
 def test_resume_reuses_finished_runs_and_reproduces_the_csv(tiny_out, capsys):
     csv_before = (tiny_out / "likelihood.csv").read_text()
     files = sorted((tiny_out / "runs").glob("likelihood-*/*.json"))
@@ -196,12 +200,15 @@ def test_resume_reuses_finished_runs_and_reproduces_the_csv(tiny_out, capsys):
     assert "--resume" in capsys.readouterr().err
 
 
+@pytest.mark.slow
+@pytest.mark.timeout(300)          # the first one runs every experiment (tiny_out: 45 s measured under load)
 def test_same_seed_same_csv(tiny_out, tmp_path):
     shutil.copy(tiny_out / "true_T.json", tmp_path / "true_T.json")   # cached: no re-probe
     assert main(["experiment", "sizes", *TINY, "--seed", "3", "--out", str(tmp_path)]) == 0
     assert (tmp_path / "sizes.csv").read_text() == (tiny_out / "sizes.csv").read_text()
 
 
+@pytest.mark.slow
 def test_resume_continues_a_partial_run_from_its_checkpoint(ray_cluster, tmp_path, capsys):
     """A run interrupted mid-way resumes from its last checkpoint with the same episodes."""
     args = ["experiment", "milestones", "--runs", "1", "--episodes", "3", "--particles", "2",
@@ -236,6 +243,8 @@ def test_resume_continues_a_partial_run_from_its_checkpoint(ray_cluster, tmp_pat
     assert (part / "milestones.csv").read_text() == (full / "milestones.csv").read_text()
 
 
+@pytest.mark.slow
+@pytest.mark.timeout(400)          # 117 s measured on 2 loaded cores
 def test_particles_with_the_kld_budget_shows_the_count_falling(ray_cluster, tmp_path):
     """`tmoc experiment particles --particle-budget kld`: the CSV records each episode's
     particle-actions, the count falls from episode 1 to the last as the belief converges,
@@ -295,6 +304,7 @@ def test_every_table_on_the_results_page_comes_from_a_committed_summary():
         assert table == ex.summary_table(summary), key
 
 
+@pytest.mark.slow
 def test_compare_on_stack_and_push_uses_its_probes_and_plans(ray_cluster, tmp_path):
     """`tmoc experiment compare --domain stack_and_push`: its T* comes from the domain's
     own probe jobs (stack onto a tower of 0..7) and its runs act in that domain."""

@@ -9,7 +9,8 @@ import pytest
 from coordinator.run_config import RunConfig
 from coordinator.runner import run
 
-pytestmark = pytest.mark.usefixtures("ray_cluster")
+# Timeout: tmoc against gp (eight episodes) took 72 s on 2 loaded cores.
+pytestmark = [pytest.mark.usefixtures("ray_cluster"), pytest.mark.slow, pytest.mark.timeout(300)]
 
 
 def _strip_times(result: dict) -> dict:

@@ -59,6 +59,8 @@ def runs():
     return {"fixed": _run("fixed"), "kld": _run("kld")}
 
 
+@pytest.mark.slow
+@pytest.mark.timeout(400)          # the two runs (fixture): 135 s measured on 2 loaded cores
 def test_the_count_falls_as_the_belief_converges(runs):
     kld, fixed = runs["kld"]["episodes"], runs["fixed"]["episodes"]
     assert all(set(e["particles_per_action"]) == {24} for e in fixed)
@@ -70,6 +72,8 @@ def test_the_count_falls_as_the_belief_converges(runs):
     assert abs(kld[-1]["posterior"]["size_mean"] - fixed[-1]["posterior"]["size_mean"]) < 0.001
 
 
+@pytest.mark.slow
+@pytest.mark.timeout(400)
 def test_an_adaptive_run_depends_on_its_seed_alone(runs):
     again = _run("kld")
     strip = lambda eps: [{k: v for k, v in e.items() if not k.endswith("_s")} for e in eps]  # noqa: E731

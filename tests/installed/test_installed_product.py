@@ -37,7 +37,7 @@ _JUNK = re.compile(r"(__pycache__|\.pyc$|\.pyo$|\.egg-info)")
 _TREE_IGNORE = shutil.ignore_patterns(".git", ".ci-venv", ".venv", "venv", "runs", "build",
                                       "dist", "*.egg-info", "__pycache__", ".pytest_cache")
 
-pytestmark = pytest.mark.timeout(1500)
+pytestmark = [pytest.mark.slow, pytest.mark.timeout(1500)]
 
 
 def package_files(root: Path) -> set[str]:

@@ -30,6 +30,7 @@ def test_the_test_process_imports_the_installed_packages():
         assert _outside_checkout(module.__file__), module.__file__
 
 
+@pytest.mark.slow          # starts the session's Ray
 def test_ray_workers_import_the_installed_packages(ray_cluster):
     ray = ray_cluster
 

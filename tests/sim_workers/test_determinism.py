@@ -140,6 +140,7 @@ _SCRIPT = textwrap.dedent("""
 """)
 
 
+@pytest.mark.timeout(180)          # the fresh process may take its 120 s
 def test_a_fresh_process_gives_identical_bits(neutral_cwd):
     actions = [PICKUP, PUSH]
     proc = subprocess.run([sys.executable, "-c", _SCRIPT, json.dumps(actions), __file__],
@@ -188,6 +189,8 @@ def test_shard_size_and_batch_split_do_not_matter():
     assert len({_bits(row) for row in whole["configurations"]}) == len(SIZES)
 
 
+@pytest.mark.slow
+@pytest.mark.timeout(480)          # Ray's start, then ray.get waits of 180 + 180 + 60 s
 def test_two_ray_actors_match_the_in_process_shard(ray_cluster):
     ray = ray_cluster
     config, traj, t0 = _case(PUSH)
@@ -220,6 +223,7 @@ def _rss_mb() -> float:
     return resident_pages * os.sysconf("SC_PAGE_SIZE") / 2 ** 20
 
 
+@pytest.mark.slow
 def test_memory_stays_flat_over_many_resets():
     domain = load("container")
     config, traj, t0 = _case(PICKUP)

@@ -23,6 +23,7 @@ def _rate(action: str, load: int, believed: float, truth: dict = HEAVY) -> float
                  options=truth, believed_density=believed).success_rate
 
 
+@pytest.mark.slow
 def test_the_grip_comes_from_the_believed_mass():
     """Too light a belief (42 % of the true mass) and the block slips out on every lift;
     the truth, or heavier, holds it every time. (Probe, 16 trials: 1000 -> 0/16, 1300 ->
@@ -32,6 +33,7 @@ def test_the_grip_comes_from_the_believed_mass():
     assert _rate("pickup", 1, 3000.0) == 1.0
 
 
+@pytest.mark.slow
 def test_the_push_limit_comes_from_the_believed_tower_mass():
     """A tower of 4 heavy blocks: a limit from half its mass does not beat its friction
     (it stalls at the start); from its true mass it reaches the goal every time."""
@@ -39,6 +41,7 @@ def test_the_push_limit_comes_from_the_believed_tower_mass():
     assert _rate("push", 4, 2400.0) == 1.0
 
 
+@pytest.mark.slow
 def test_too_heavy_a_belief_throws_a_tall_tower_over():
     """A tower of 6 light (700 kg/m^3) blocks pushed with a limit for 3000 kg/m^3: nothing
     holds the stroke back and the tower is thrown at the reference's 8 m/s^2. (16 trials:

@@ -45,11 +45,13 @@ def test_pickup_with_wrong_believed_size_fails_in_at_least_half(factor):
     assert 1 - r.success_rate >= 0.5, r.to_dict()
 
 
+@pytest.mark.slow
 def test_stacking_first_four_blocks_with_true_sizes():
     r = probe("stack", TRUE, load_k=4, trials=12, seed=13)
     assert r.success_rate >= 0.9, r.to_dict()
 
 
+@pytest.mark.slow
 def test_push_loses_blocks_more_often_with_a_heavier_load():
     light = probe("push", TRUE, load_k=2, trials=20, seed=14)
     heavy = probe("push", TRUE, load_k=8, trials=20, seed=14)

@@ -304,6 +304,8 @@ def cli_probe(cwd, action: str, load_k: int = 4, believed: float | None = None) 
     return json.loads(lines[0])
 
 
+@pytest.mark.slow
+@pytest.mark.timeout(360)          # the CLI subprocess may take its 300 s
 def test_push_of_two_succeeds_through_the_cli(neutral_cwd):
     data = cli_probe(neutral_cwd, "push", load_k=2)
     assert data["domain"] == "stack_and_push" and data["action"] == "push" and data["load"] == 2
@@ -321,23 +323,28 @@ def test_pickup_with_a_25_percent_wrong_belief_fails():
     assert rate("pickup", believed=0.050) <= 0.5
 
 
+@pytest.mark.slow
 def test_stack_onto_a_tower_of_four_succeeds():
     assert rate("stack", 4) >= 0.9
 
 
+@pytest.mark.slow
 def test_a_tall_tower_pushes_worse_than_a_short_one():
     assert rate("push", 8) <= rate("push", 2) - 0.25
 
 
+@pytest.mark.slow
 def test_some_middle_height_is_graded():
     rates = {k: rate("push", k) for k in range(3, 8)}
     assert any(0.2 <= r <= 0.8 for r in rates.values()), rates
 
 
+@pytest.mark.slow
 def test_a_tower_of_eight_left_alone_stands():
     assert rate("stand", 8) == 1.0
 
 
+@pytest.mark.slow
 def test_probe_accepts_every_load_t_star_asks_for():
     """T* (tmoc experiment) probes a stack onto the empty start site (load 0); probe() once
     refused every load outside 1..n, the container's range."""

@@ -1,0 +1,92 @@
+"""The agent registry (coordinator.agents), parametrised over every registered agent as the
+domains are in test_domains.py: each is accepted wherever a run is configured, runs a short
+episode in-process (no Ray: an in-process shard pool) and shows the properties its
+`AgentSpec` documents. A new agent is checked without touching this file."""
+from __future__ import annotations
+
+import json
+
+import pytest
+from pydantic import ValidationError
+
+from coordinator.agents import AGENTS, AgentSpec, agent
+from coordinator.cli import main
+from coordinator.fanout import ShardPool
+from coordinator.run_config import RunConfig
+from coordinator.runner import run
+
+NAMES = list(AGENTS)
+# What every episode record carries (result.json's "episodes", the service's /episodes).
+RECORD_KEYS = {"episode", "utility", "actions", "failures", "loads", "delivered", "plans",
+               "posterior", "ess", "wall_s", "physics_s", "planning_s", "particle_actions",
+               "particles_per_action"}
+PARTICLES = 4
+
+
+def test_the_paper_agents_are_registered():
+    assert {"tmoc", "tmp_rl", "gp", "toep"} <= set(NAMES)
+    with pytest.raises(ValueError, match="unknown agent 'nope'"):
+        agent("nope")
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_every_agent_spec_is_consistent(name):
+    spec = agent(name)
+    assert isinstance(spec, AgentSpec) and spec.name == name
+    assert spec.planner in ("optimal", "satisficing")
+    assert spec.grasp in ("belief", "prior_mean", "random")
+    if not spec.learn_belief:      # no particles: nothing to grasp by, nothing to simulate
+        assert spec.grasp != "belief" and not spec.sim_experience
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_every_agent_is_accepted_by_the_run_config_and_the_cli(name, capsys):
+    assert RunConfig(agent=name).agent == name
+    assert main(["run", "--agent", name, "--print-config"]) == 0
+    assert json.loads(capsys.readouterr().out)["agent"] == name
+
+
+def test_an_unregistered_agent_is_refused():
+    with pytest.raises(ValidationError, match="agent"):
+        RunConfig(agent="nope")
+
+
+@pytest.fixture(scope="module")
+def episodes() -> dict[str, tuple[dict, dict]]:
+    """(result, sim counts of the experience pool) of one short episode per agent."""
+    out = {}
+    for name in NAMES:
+        cfg = RunConfig(agent=name, particles=PARTICLES, episodes=1, max_steps=3, seed=2,
+                        particle_budget="fixed")
+        sims = {}
+        pool = ShardPool(cfg.domain, {"n_blocks": cfg.n_blocks}, n_shards=0)
+        try:
+            result = run(cfg, pool=pool,
+                         on_episode=lambda rec, session, ck: sims.update(session.experience.counts()["sim"]))
+        finally:
+            pool.close()
+        out[name] = (result, sims)
+    return out
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_every_agent_runs_an_episode_with_the_record_and_properties_it_documents(name, episodes):
+    spec = agent(name)
+    result, sims = episodes[name]
+    assert result["config"]["agent"] == name
+    (record,) = result["episodes"]
+    assert set(record) == RECORD_KEYS, set(record) ^ RECORD_KEYS
+    assert 1 <= record["actions"] <= 3 and record["plans"]
+    n_blocks = result["config"]["n_blocks"]
+    assert sum(record["plans"][0]) == n_blocks         # every plan moves every block
+    if spec.planner == "optimal":                      # optimistic T before any data: one trip
+        assert record["plans"][0] == [n_blocks]
+    post = record["posterior"]
+    if spec.learn_belief:
+        assert record["ess"] is not None and "mean" in post and post["size_std"] > 0
+        assert record["particle_actions"] == PARTICLES * record["actions"]
+    else:                                              # L stays at the prior mean, no particles
+        assert record["ess"] is None and post["size_std"] == 0.0
+        assert post["size_mean"] == pytest.approx(0.045)
+        assert record["particle_actions"] == 0 and result["runtime"]["particle_actions"] == 0
+    assert bool(sims) == spec.sim_experience, sims
