@@ -251,3 +251,10 @@ class GroundedWorld:
         h = self.handles
         q = [s[0] for s in pb.getJointStates(h.gripper, list(h.fingers), physicsClientId=self.client)]
         return 2.0 * (float(np.mean(q)) - h.finger_inner)
+
+
+def act(world: GroundedWorld, domain, config: Configuration, believed: dict, action: str):
+    """Run `action` with Y at the believed properties; the free-space transit is skipped."""
+    key = domain.action_pose(believed, config, action)
+    traj = domain.action_trajectory(config, action, key)
+    return world.execute(traj, action, start_time=domain.transit_end_time(config, action, key))

@@ -14,7 +14,7 @@ import os
 import socket
 import sqlite3
 
-from ..cli import UsageError
+from . import UsageError
 
 
 def register(sub) -> None:

@@ -6,7 +6,6 @@ import re
 
 import numpy as np
 
-from .. import domains
 from ..configuration import Configuration
 from ..properties import MAX_DENSITY, MIN_DENSITY, PropertyError, block_properties
 from . import probes, scene, state_mapping, trajectories
@@ -181,6 +180,3 @@ class ContainerDomain:
             raise ValueError(f"action: pickup from {args[2]!r} (expected init or table)")
         if name == "push" and not all(re.fullmatch(r"init|goal", a) for a in args[2:4]):
             raise ValueError(f"action: push between {args[2:4]} (expected init/goal)")
-
-
-domains.register("container", ContainerDomain)

@@ -7,7 +7,6 @@ import dataclasses
 
 import numpy as np
 
-from .. import domains
 from ..configuration import Configuration
 from ..container.scene import GRIPPER_MASS
 from ..properties import MAX_DENSITY, MIN_DENSITY, PropertyError, PropertySpace, block_properties
@@ -387,6 +386,3 @@ def _half_heights(objects: np.ndarray, rows: list[int]) -> dict[int, float]:
         h = z - (objects[below[-1], 2] + half[below[-1]]) if below else z
         half[i] = float(np.clip(h, 0.005, 0.05))
     return half
-
-
-domains.register("stack_and_push", StackAndPushDomain)
