@@ -30,6 +30,13 @@ from .transition_model import TransitionModel
 WORKSPACE = Bounds(np.array([-0.5, -0.6, 0.0, -np.pi]), np.array([1.2, 0.6, 0.6, np.pi]))
 
 
+def workspace_of(physics) -> Bounds:
+    """The motion planner's bounds for a physics half: its ``workspace`` (plain low/high
+    arrays; a domain may need more room) or the default ``WORKSPACE``."""
+    own = getattr(physics, "workspace", None)
+    return WORKSPACE if own is None else Bounds(own.low, own.high)
+
+
 @dataclass
 class PendingStep:
     action: str
@@ -243,8 +250,7 @@ class Session:
                 except MotionPlanningError:
                     continue
             # 200 RRT* iterations, at most 600 to find a first path (~0.5 s).
-            workspace = getattr(self.domain, "workspace", WORKSPACE)   # a domain may need more room
-            return plan_transit(start, pre[:4], checker, workspace, seed=int(self.rng.integers(2**31)),
+            return plan_transit(start, pre[:4], checker, workspace_of(self.domain), seed=int(self.rng.integers(2**31)),
                                 iterations=200, max_iterations=600, shortcut=False, resolution=0.05)
         except MotionPlanningError as exc:
             self.stats.transit_fallbacks.append(str(exc)[:200])

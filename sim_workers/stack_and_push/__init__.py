@@ -7,7 +7,7 @@ import dataclasses
 
 import numpy as np
 
-from ..configuration import Configuration
+from ..configuration import Configuration, Workspace
 from ..container.scene import GRIPPER_MASS
 from ..properties import MAX_DENSITY, MIN_DENSITY, PropertyError, PropertySpace, block_properties
 from . import efforts, probes, scene, state_mapping, trajectories
@@ -60,12 +60,10 @@ class StackAndPushDomain:
         return self.spec.block_names
 
     @property
-    def workspace(self):
+    def workspace(self) -> Workspace:
         """The motion planner's bounds: room above a tower of every block at the largest
         prior size plus a held block and the palm (the loop's default stops at 0.6 m)."""
-        from planner.motion import Bounds   # the planner half; imported only when asked
-
-        return Bounds(np.array([-0.5, -0.6, 0.0, -np.pi]), np.array([1.2, 0.6, 0.75, np.pi]))
+        return Workspace(np.array([-0.5, -0.6, 0.0, -np.pi]), np.array([1.2, 0.6, 0.75, np.pi]))
 
     @property
     def L(self) -> PropertySpace:
