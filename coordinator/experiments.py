@@ -44,12 +44,15 @@ from typing import Callable, Sequence
 
 import numpy as np
 
+from sim_workers.properties import SIZES_VARIATION_SCALE
+
+from .agents import AGENTS as AGENT_SPECS
 from .run_config import RunConfig
 
 # Appended, never reordered: a run's seed derives from its experiment's index here.
 EXPERIMENTS = ("compare", "particles", "milestones", "sizes", "likelihood", "robot", "weights")
 ROBOT_EPISODES = tuple(range(0, 37, 4))            # Table II of the paper: episodes 0, 4, ..., 36
-AGENTS = ("tmoc", "tmp_rl", "gp", "toep")
+AGENTS = tuple(AGENT_SPECS)    # the agent registry's names, in its order
 PARTICLE_FRACTIONS = (0.25, 0.5, 0.75, 1.0)      # paper: N = 50, 100, 150, 200
 
 # Paper scale (a cluster): 15 runs of 5000 episodes, N = 200.
@@ -566,7 +569,7 @@ def posterior_error(posterior: dict, config: dict) -> float:
     larger, sim_workers.container) the mean over blocks of |block mean - block truth|."""
     if config["sizes_variation"] and len(posterior.get("mean") or []) == config["n_blocks"]:
         truth = np.full(config["n_blocks"], config["true_size"])
-        truth[0] *= 1.2
+        truth[0] *= SIZES_VARIATION_SCALE
         return float(np.mean(np.abs(np.array(posterior["mean"]) - truth)))
     return abs(posterior["size_mean"] - config["true_size"])
 

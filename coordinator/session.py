@@ -16,15 +16,16 @@ import numpy as np
 
 from planner.motion import Bounds, MotionPlanningError, box_checker, plan_approach, plan_transit
 from sim_workers.configuration import Configuration
+from sim_workers.properties import SIZES_VARIATION_SCALE
 from sim_workers.trajectory import columns_of
 
-from .agents import agent as agent_spec
+from .agents import agent_spec
 from .belief import Belief, gaussian_log_likelihood, mode_mask, symbolic_log_likelihood
 from .domains import load as load_domain, property_space
 from .experience import ExperiencePool
 from .particle_budget import next_count
 from .reality import Observation
-from .run_config import RunConfig, stored_run_config
+from .run_config import AGENT_STREAM, RunConfig, seed_stream, stored_run_config
 from .transition_model import TransitionModel
 
 WORKSPACE = Bounds(np.array([-0.5, -0.6, 0.0, -np.pi]), np.array([1.2, 0.6, 0.6, np.pi]))
@@ -80,8 +81,7 @@ class Session:
         self.n_blocks = config.n_blocks
         self.costs = utility_terms(self.task, config)
         self.pool = pool
-        seq = np.random.SeedSequence(config.seed)
-        self.rng = np.random.default_rng(seq.spawn(1)[0])
+        self.rng = seed_stream(config.seed, AGENT_STREAM)
         # L: named properties, one value each for every block, or one per block with
         # the "sizes" variation; a row is property-major (sizes, then densities, ...).
         self.L = property_space(self.domain)
@@ -139,7 +139,8 @@ class Session:
 
     def truth_row(self) -> np.ndarray:
         """The hidden truth as a row of L (the "sizes" variation: block 1 is 20 % larger)."""
-        return self.L.truth_row(self.config.truth_values(), self.n_blocks, self.per_block, {"size": 1.2})
+        return self.L.truth_row(self.config.truth_values(), self.n_blocks, self.per_block,
+                               {"size": SIZES_VARIATION_SCALE})
 
     # -- particles -----------------------------------------------------------------------
     def particle_sizes(self) -> np.ndarray:

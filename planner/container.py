@@ -3,24 +3,19 @@
 (``planner.task_planner``), behind the one protocol the loop speaks."""
 from __future__ import annotations
 
-import re
 from typing import Iterable, Mapping, Sequence
 
 import numpy as np
 
 from planner import symbolic, task_planner
 from planner.domain import Context, UnknownAction
+from planner.terms import parse_term
 
-_TERM = re.compile(r"^\s*([a-z_][A-Za-z0-9_]*)\s*\((.*)\)\s*$")
 _ARITY = {"pickup": 3, "stack": 3, "push": 4}
 
 
 def _parse_term(term: str) -> tuple[str, tuple[str, ...]]:
-    m = _TERM.match(term)
-    if m is None:
-        raise UnknownAction(f"not a ground term: {term!r}")
-    args = tuple(a.strip() for a in m.group(2).split(",")) if m.group(2).strip() else ()
-    return m.group(1), args
+    return parse_term(term, "action", UnknownAction)
 
 
 def _load(state: frozenset[str], container: str) -> int:

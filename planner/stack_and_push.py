@@ -19,7 +19,7 @@ from typing import Iterable, Mapping, Sequence
 
 import numpy as np
 
-from planner import task_planner as tp
+from planner import task_planner as tp, terms
 from planner.domain import Context, UnknownAction
 from planner.task_planner import Plan, PlanningError
 
@@ -27,7 +27,6 @@ ENCODING = Path(__file__).with_name("asp") / "stack_and_push.lp"
 ROBOT, TOWER, START, GOAL = "r", "tower", "start", "goal"
 PICKUP_PLACES = ("init", "table", "rail")
 PLACES = PICKUP_PLACES + (GOAL,)
-_TERM = re.compile(r"^([a-z_][A-Za-z0-9_]*)\(([^()]*)\)$")
 _BLOCK = re.compile(r"^b([1-9][0-9]*)$")
 _ARITY = {"pickup": 3, "stack": 3, "push": 4}
 
@@ -35,10 +34,8 @@ _ARITY = {"pickup": 3, "stack": 3, "push": 4}
 # --------------------------------------------------------------------------- symbols
 
 def parse_term(term: str) -> tuple[str, tuple[str, ...]]:
-    m = _TERM.match(term.replace(" ", ""))
-    if m is None:
-        raise UnknownAction(f"not a ground term: {term!r}")
-    return m.group(1), tuple(m.group(2).split(",")) if m.group(2) else ()
+    """``planner.terms.parse_term``, malformed text being an UnknownAction here."""
+    return terms.parse_term(term, "term", UnknownAction)
 
 
 def block_index(name: str) -> int:

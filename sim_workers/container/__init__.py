@@ -7,7 +7,7 @@ import re
 import numpy as np
 
 from ..configuration import Configuration
-from ..properties import MAX_DENSITY, MIN_DENSITY, PropertyError, block_properties
+from ..properties import MAX_DENSITY, MIN_DENSITY, SIZES_VARIATION_SCALE, PropertyError, block_properties
 from . import probes, scene, state_mapping, trajectories
 from .spec import ContainerSpec
 
@@ -48,7 +48,7 @@ class ContainerDomain:
         """The hidden truth: all blocks `true_size`, or (variation "sizes") one 20 % larger."""
         sizes = np.full(self.spec.n_blocks, self.spec.true_size)
         if sizes_variation:
-            sizes[0] *= 1.2
+            sizes[0] *= SIZES_VARIATION_SCALE
         return {"block_sizes": sizes}
 
     def properties(self, props: dict) -> dict:

@@ -9,30 +9,14 @@ observation fixes only where things are, not how big they are).
 """
 from __future__ import annotations
 
-import re
-
 import numpy as np
 
 from ..configuration import Configuration, face_yaw, quat_from_yaw, rotate_z, yaw_of
+from ..terms import block_index, parse_action  # noqa: F401  (used as state_mapping.*)
 from .spec import ContainerSpec
-
-_ACTION = re.compile(r"^(pickup|stack|push)\(([^()]*)\)$")
 
 # Labels of where a block is; Y^-1 turns them into atoms.
 HELD, CONTAINER, GOAL, INIT, TABLE = "held", "container", "goal", "init", "table"
-
-
-def parse_action(action: str) -> tuple[str, list[str]]:
-    m = _ACTION.match(action.replace(" ", ""))
-    if not m:
-        raise ValueError(f"action: cannot parse {action!r}")
-    return m.group(1), m.group(2).split(",")
-
-
-def block_index(spec: ContainerSpec, name: str) -> int:
-    if not re.fullmatch(r"b\d+", name) or not 1 <= int(name[1:]) <= spec.n_blocks:
-        raise ValueError(f"action: unknown block {name!r}")
-    return int(name[1:]) - 1
 
 
 def container_location(spec: ContainerSpec, config: Configuration) -> str:

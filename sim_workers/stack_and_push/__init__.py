@@ -9,7 +9,7 @@ import numpy as np
 
 from ..configuration import Configuration, Workspace
 from ..container.scene import GRIPPER_MASS
-from ..properties import MAX_DENSITY, MIN_DENSITY, PropertyError, PropertySpace, block_properties
+from ..properties import MAX_DENSITY, MIN_DENSITY, SIZES_VARIATION_SCALE, PropertyError, PropertySpace, block_properties
 from . import efforts, probes, scene, state_mapping, trajectories
 from .spec import StackAndPushSpec
 
@@ -78,7 +78,7 @@ class StackAndPushDomain:
         """The hidden truth: all blocks `true_size`, or (variation "sizes") one 20 % larger."""
         sizes = np.full(self.spec.n_blocks, self.spec.true_size)
         if sizes_variation:
-            sizes[0] *= 1.2
+            sizes[0] *= SIZES_VARIATION_SCALE
         return {"block_sizes": sizes, "density": self.spec.density}
 
     def properties(self, props: dict) -> dict:
