@@ -64,7 +64,6 @@ class EpisodeStats:
     wall_s: float = 0.0
     physics_s: float = 0.0
     planning_s: float = 0.0
-    real_s: float = 0.0
     transit_fallbacks: list = field(default_factory=list)
     particle_counts: list = field(default_factory=list)   # particle worlds per action
 
@@ -190,7 +189,7 @@ class Session:
         self.stats.plans.append(list(plan.loads))
         self.stats.planning_s += time.perf_counter() - t0
 
-    def _key_pose(self, config: Configuration, action: str) -> tuple[np.ndarray, np.ndarray | None]:
+    def _real_pose(self, config: Configuration, action: str) -> tuple[np.ndarray, np.ndarray | None]:
         """Step 2 of the loop: the real pose x and (for TMOC) each particle's x_i."""
         spec = self.domain.spec
         mode = self.agent.grasp
@@ -269,7 +268,7 @@ class Session:
             self._replan()
         action = self.plan[0]
         config = self.observation.configuration
-        x, xs = self._key_pose(config, action)
+        x, xs = self._real_pose(config, action)
         pre = self.domain.pre_pose(config, action, x)
         transit = self._transit(config, pre)
         traj = self.domain.action_trajectory(config, action, x, transit)
@@ -470,9 +469,7 @@ class Session:
             step = self.next_step()
             if step is None:          # done before acting (e.g. nothing left to deliver)
                 return self._finish_episode()
-            t0 = time.perf_counter()
             obs = reality.execute(step.trajectory, step.action)
-            self.stats.real_s += time.perf_counter() - t0
             report = self.observe(obs)
             if "episode" in report:
                 return report["episode"]
