@@ -6,12 +6,12 @@ from typing import Annotated, Literal
 import numpy as np
 from pydantic import AfterValidator, BaseModel, ConfigDict, Field, model_validator
 
-from planner.task_planner import DEFAULT_COSTS
+from planner.task_model import DEFAULT_COSTS
 
 from .agents import AGENTS
 
 # One place for each fact: the agent names are the registry's (coordinator.agents), the
-# default utility terms the planner's (planner.task_planner.DEFAULT_COSTS).
+# default utility terms the task model's (planner.task_model.DEFAULT_COSTS).
 AgentName = Literal[tuple(AGENTS)]  # type: ignore[valid-type]
 
 

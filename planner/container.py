@@ -7,7 +7,7 @@ from typing import Iterable, Mapping, Sequence
 
 import numpy as np
 
-from planner import symbolic, task_planner
+from planner import symbolic, task_model, task_planner
 from planner.domain import Context, UnknownAction
 from planner.terms import parse_term
 
@@ -58,7 +58,7 @@ class ContainerTask:
 
     name = "container"
     action_names = ("pickup", "stack", "push")
-    default_costs = dict(task_planner.DEFAULT_COSTS)
+    default_costs = dict(task_model.DEFAULT_COSTS)
 
     def initial_state(self, n_blocks: int) -> frozenset[str]:
         return symbolic.initial_state(n_blocks)
@@ -84,7 +84,7 @@ class ContainerTask:
         return context_of(state, action)
 
     def optimistic_transition(self, n_blocks: int) -> dict:
-        return task_planner.optimistic_transition(n_blocks)
+        return task_model.optimistic_transition(n_blocks)
 
     def plan(self, state: Iterable[str], transition: Mapping, costs: Mapping | None = None, *,
              block_classes: Mapping[str, str] | None = None, max_steps: int | None = None,
@@ -98,7 +98,7 @@ class ContainerTask:
 
     def expected_utility(self, state: Iterable[str], actions: Sequence[str], transition: Mapping,
                          costs: Mapping | None = None) -> float:
-        return task_planner.expected_utility(state, actions, transition, costs)
+        return task_model.expected_utility(state, actions, transition, costs)
 
     def step_reward(self, state: frozenset[str], action: str, next_state: frozenset[str],
                     costs: Mapping[str, float]) -> tuple[float, dict]:
