@@ -194,7 +194,7 @@ def run_config(spec: Spec, k: int, r: int) -> RunConfig:
               "seed": run_seed(spec.seed, EXPERIMENTS.index(spec.name), k, r),
               "particle_budget": spec.particle_budget, "min_particles": spec.min_particles}
     fields.update(s.overrides)
-    if fields["agent"] in ("tmp_rl", "toep"):
+    if not AGENT_SPECS[fields["agent"]].learn_belief:     # tmp_rl, toep
         fields["particles"] = 1          # they keep no particles; 1 keeps the config honest
     return RunConfig(**fields)
 
