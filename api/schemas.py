@@ -13,7 +13,7 @@ from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, create_model, model_validator
 
-from coordinator.run_config import Costs, RunConfig
+from coordinator.run_config import Costs, RunConfig, field_bounds
 
 TaskStatus = Literal["queued", "running", "succeeded", "failed", "cancelled"]
 SessionStatus = Literal["active", "finished", "closed"]
@@ -96,9 +96,13 @@ def _spec_fields(exclude: set[str], max_particles: int, max_episodes: int, max_s
         description=f"actions per episode at most; this server's limit is {max_steps} (--max-steps)"))
     fields["seed"] = (int, Field(
         0, ge=0, le=2**53 - 1, description="the run's seed (a JSON-safe integer, below 2^53)"))
+    # Deprecated, still accepted (clients send it): a task cannot choose its shards, every
+    # task runs on the server's one shard pool (`tmoc serve --shards`). OpenAPI marks it.
     fields["shards"] = (int | None, Field(
-        None, ge=0, le=4096,
-        description="ignored by the service: every task uses the server's shared shard pool"))
+        None, ge=0, le=field_bounds("shards")[1],
+        description="deprecated and ignored by the service: every task uses the server's "
+                    "shared shard pool (tmoc serve --shards)",
+        json_schema_extra={"deprecated": True}))
     return fields
 
 

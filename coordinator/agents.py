@@ -11,7 +11,7 @@ class AgentSpec:
     learn_belief:   keep particles over L and reweight them (learns L and so Y)
     sim_experience: feed the particles' simulated transitions into T
     planner:        "optimal" (max expected utility under T) or "satisficing" (random valid)
-    grasp:          "belief" (weighted mean of Y over particles), "prior_mean" (Y at the
+    grasp:          "belief" (Y at the real pose x of the belief), "prior_mean" (Y at the
                     prior mean, never updated) or "random" (Y at a size drawn uniformly from
                     the prior range each action: a random grasp within a reasonable range)
     """
@@ -35,7 +35,11 @@ AGENTS: dict[str, AgentSpec] = {
 }
 
 
-def agent(name: str) -> AgentSpec:
+def agent_spec(name: str) -> AgentSpec:
+    """The agent registered as `name`; ValueError naming the known agents otherwise."""
     if name not in AGENTS:
         raise ValueError(f"agent: unknown agent {name!r} (known: {', '.join(AGENTS)})")
     return AGENTS[name]
+
+
+agent = agent_spec   # the old name (api, experiments and users import it)

@@ -2,8 +2,9 @@
 
 Every sub-command module exposes ``register(subparsers)`` which adds its parser and sets
 ``func`` (a callable taking the parsed namespace and returning an exit code). Input a user
-can get wrong raises :class:`UsageError`; it is printed as one line and exits with code 2,
-like argparse's own errors, never as a traceback.
+can get wrong raises :class:`UsageError` (defined in ``coordinator.commands``, so the
+commands never import this module); it is printed as one line and exits with code 2, like
+argparse's own errors, never as a traceback.
 """
 from __future__ import annotations
 
@@ -12,12 +13,12 @@ import importlib
 import sys
 from typing import Sequence
 
+from coordinator.commands import UsageError
+
+__all__ = ["COMMAND_MODULES", "UsageError", "build_parser", "main"]   # UsageError: old home
+
 # Order is the order shown in `tmoc --help`.
 COMMAND_MODULES = ("run", "probe", "plan", "serve", "experiment", "domains", "check_domain")
-
-
-class UsageError(ValueError):
-    """Bad input from the user; the message names what is wrong."""
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -44,8 +45,4 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 if __name__ == "__main__":  # pragma: no cover
-    # `python -m coordinator.cli`: run the imported module's main, so that the UsageError
-    # the commands raise (coordinator.cli.UsageError) is the one caught there.
-    from coordinator.cli import main as _main
-
-    sys.exit(_main())
+    sys.exit(main())

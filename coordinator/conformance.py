@@ -17,7 +17,7 @@ from sim_workers.grounded_world import GroundedWorld
 from sim_workers.properties import PropertyError
 
 from .domains import Domain, load
-from .transit import WORKSPACE
+from .transit import workspace_of
 
 
 @dataclass(frozen=True)
@@ -177,7 +177,7 @@ def _random_transition(template: dict, rng: np.random.Generator) -> dict:
 def check_y(d: Domain) -> str:
     """Y is finite and inside the motion planner's workspace at the prior's bounds."""
     low, high = _prior(d)
-    workspace = getattr(d.physics, "workspace", WORKSPACE)
+    workspace = workspace_of(d.physics)
     config = d.physics.initial_configuration(_truth(d))
     n = 0
     for size in (low, high):

@@ -39,7 +39,7 @@ class DomainSpec:
 
 BUILTIN: dict[str, DomainSpec] = {
     "container": DomainSpec(
-        "container", "sim_workers.container:ContainerDomain", "planner.container:ContainerTask",
+        "container", physics_registry.BUILTIN["container"], "planner.container:ContainerTask",
         "the paper's simulation task: blocks carried to a goal in an open container "
         "(heavier loads topple more often)"),
 }
@@ -56,7 +56,7 @@ def _optional_builtin(name: str, physics: str, task: str, description: str) -> N
 
 
 _optional_builtin(
-    "stack_and_push", "sim_workers.stack_and_push:StackAndPushDomain",
+    "stack_and_push", physics_registry.BUILTIN["stack_and_push"],
     "planner.stack_and_push:StackAndPushTask",
     "the paper's real-robot task: blocks stacked into a tower on a rail and pushed to a goal "
     "area (taller towers topple more often)")

@@ -21,7 +21,6 @@ class EpisodeStats:
     wall_s: float = 0.0
     physics_s: float = 0.0
     planning_s: float = 0.0
-    real_s: float = 0.0
     transit_fallbacks: list = field(default_factory=list)
     particle_counts: list = field(default_factory=list)   # particle worlds per action
 

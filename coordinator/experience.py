@@ -15,7 +15,7 @@ from typing import Callable, Iterator, Sequence
 
 import numpy as np
 
-from coordinator.transition_model import context_of
+from planner.container import context_of   # the container's contexts: the default
 
 __all__ = ["Transition", "ExperiencePool", "SOURCES"]
 

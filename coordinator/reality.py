@@ -13,7 +13,7 @@ import numpy as np
 
 from sim_workers.configuration import Configuration
 from sim_workers.grounded_world import GroundedWorld
-from sim_workers.probe import jitter_planar, jittered_domain
+from sim_workers.reality_gap import RealityGap, jitter_planar, jittered_domain
 
 
 @dataclass(frozen=True)
@@ -28,13 +28,6 @@ class Observation:
 class Reality(Protocol):
     def start_episode(self, rng: np.random.Generator) -> Observation: ...
     def execute(self, trajectory: np.ndarray, action: str) -> Observation: ...
-
-
-@dataclass(frozen=True)
-class RealityGap:
-    friction: float = 0.10       # relative, uniform, redrawn each episode
-    placement_m: float = 0.002   # std of initial block placement
-    yaw_rad: float = 0.05
 
 
 class SimulatedReality:

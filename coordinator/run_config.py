@@ -3,7 +3,16 @@ from __future__ import annotations
 
 from typing import Annotated, Literal
 
+import numpy as np
 from pydantic import AfterValidator, BaseModel, ConfigDict, Field, model_validator
+
+from planner.task_model import DEFAULT_COSTS
+
+from .agents import AGENTS
+
+# One place for each fact: the agent names are the registry's (coordinator.agents), the
+# default utility terms the task model's (planner.task_model.DEFAULT_COSTS).
+AgentName = Literal[tuple(AGENTS)]  # type: ignore[valid-type]
 
 
 def _registered_domain(name: str) -> str:
@@ -25,12 +34,12 @@ class Costs(BaseModel):
     checked against its utility terms by RunConfig."""
 
     model_config = ConfigDict(extra="allow")
-    pickup: float = Field(15.0, ge=0, le=1e4)
-    stack: float = Field(10.0, ge=0, le=1e4)
-    push: float = Field(30.0, ge=0, le=1e4)
-    fail: float = Field(50.0, ge=0, le=1e4)
-    deliver: float = Field(40.0, ge=0, le=1e4)
-    all_delivered: float = Field(80.0, ge=0, le=1e4)
+    pickup: float = Field(DEFAULT_COSTS["pickup"], ge=0, le=1e4)
+    stack: float = Field(DEFAULT_COSTS["stack"], ge=0, le=1e4)
+    push: float = Field(DEFAULT_COSTS["push"], ge=0, le=1e4)
+    fail: float = Field(DEFAULT_COSTS["fail"], ge=0, le=1e4)
+    deliver: float = Field(DEFAULT_COSTS["deliver"], ge=0, le=1e4)
+    all_delivered: float = Field(DEFAULT_COSTS["all_delivered"], ge=0, le=1e4)
 
 
 class RunConfig(BaseModel):
@@ -38,7 +47,7 @@ class RunConfig(BaseModel):
 
     model_config = ConfigDict(extra="forbid")
     domain: DomainName = "container"
-    agent: Literal["tmoc", "tmp_rl", "gp", "toep"] = "tmoc"
+    agent: AgentName = "tmoc"
     particles: int = Field(32, ge=1, le=5000)
     # The particle budget (issue 15): "fixed" keeps `particles`; "kld" chooses the count for
     # each action by KLD-sampling (coordinator/particle_budget.py) between min_particles
@@ -97,8 +106,9 @@ class RunConfig(BaseModel):
             size = self.truth["size"]
             if "true_size" in self.model_fields_set and size != self.true_size:
                 raise ValueError(f"truth.size: {size} disagrees with true_size {self.true_size}")
-            if not 0.02 <= size <= 0.08:
-                raise ValueError(f"truth.size: {size} m is outside [0.02, 0.08] m")
+            low, high = field_bounds("true_size")
+            if not low <= size <= high:
+                raise ValueError(f"truth.size: {size} m is outside [{low}, {high}] m")
             self.true_size = float(size)
         phys = load(self.domain, n_blocks=self.n_blocks, **self.options).physics
         L = property_space(phys)
@@ -145,6 +155,36 @@ class RunConfig(BaseModel):
             if not isinstance(value, (int, float)) or not 0 <= float(value) <= 1e4:
                 raise ValueError(f"costs.{key}: expected a number in [0, 10000], got {value!r}")
         return self
+
+
+def field_bounds(name: str) -> tuple[float | None, float | None]:
+    """The (ge, le) limits RunConfig puts on field `name` (None: unbounded on that side):
+    what the CLI's limits (`tmoc serve --max-particles`, ...) are checked against.
+
+    >>> field_bounds("particles")
+    (1, 5000)
+    """
+    low = high = None
+    for constraint in RunConfig.model_fields[name].metadata:
+        low = getattr(constraint, "ge", low)
+        high = getattr(constraint, "le", high)
+    return low, high
+
+
+# A run's random streams: children of SeedSequence(seed), each owned by one part, so the
+# agent's decisions never shift the reality's draws (and results depend on the seed only).
+AGENT_STREAM = 0        # the session: belief, planning, grasps
+REALITY_STREAM = 1      # the simulated reality: per-episode gap and placement
+
+
+def seed_stream(seed: int, stream: int) -> np.random.Generator:
+    """The generator of stream `stream` of a run seeded `seed` (child `stream` of
+    ``SeedSequence(seed)``; the same whatever the number of streams).
+
+    >>> float(seed_stream(0, AGENT_STREAM).random()) == float(seed_stream(0, 0).random())
+    True
+    """
+    return np.random.default_rng(np.random.SeedSequence(seed).spawn(stream + 1)[stream])
 
 
 def stored_run_config(fields: dict) -> RunConfig:

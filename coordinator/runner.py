@@ -10,7 +10,7 @@ import numpy as np
 
 from .fanout import ShardPool, init_ray
 from .reality import SimulatedReality
-from .run_config import RunConfig
+from .run_config import REALITY_STREAM, RunConfig, seed_stream
 from .session import Session
 
 
@@ -110,7 +110,7 @@ def run(config: RunConfig, *, ray_address: str | None = None,
 
         session.frames = FrameRecorder(config.domain, domain_options(config), reality.truth, frames)
     # Reality's draws come from their own stream: the agent's decisions never shift them.
-    reality_rng = np.random.default_rng(np.random.SeedSequence(config.seed).spawn(2)[1])
+    reality_rng = seed_stream(config.seed, REALITY_STREAM)
     if resume:
         reality_rng.bit_generator.state = resume["reality_rng"]
     nodes: list[dict] = []

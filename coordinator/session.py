@@ -17,16 +17,17 @@ from dataclasses import dataclass
 import numpy as np
 
 from sim_workers.configuration import Configuration
+from sim_workers.properties import SIZES_VARIATION_SCALE
 from sim_workers.trajectory import columns_of
 
-from .agents import agent as agent_spec
+from .agents import agent_spec
 from .belief import Belief, gaussian_log_likelihood, mode_mask, symbolic_log_likelihood
 from .domains import load as load_domain, property_space
 from .episode import EpisodeStats, utility_terms
 from .experience import ExperiencePool
 from .particle_budget import next_count
 from .reality import Observation
-from .run_config import RunConfig, stored_run_config
+from .run_config import AGENT_STREAM, RunConfig, seed_stream, stored_run_config
 from .transit import plan_pre_pose_transit
 from .transition_model import TransitionModel
 
@@ -57,8 +58,7 @@ class Session:
         self.n_blocks = config.n_blocks
         self.costs = utility_terms(self.task, config)
         self.pool = pool
-        seq = np.random.SeedSequence(config.seed)
-        self.rng = np.random.default_rng(seq.spawn(1)[0])
+        self.rng = seed_stream(config.seed, AGENT_STREAM)
         # L: named properties, one value each for every block, or one per block with
         # the "sizes" variation; a row is property-major (sizes, then densities, ...).
         self.L = property_space(self.domain)
@@ -116,7 +116,8 @@ class Session:
 
     def truth_row(self) -> np.ndarray:
         """The hidden truth as a row of L (the "sizes" variation: block 1 is 20 % larger)."""
-        return self.L.truth_row(self.config.truth_values(), self.n_blocks, self.per_block, {"size": 1.2})
+        return self.L.truth_row(self.config.truth_values(), self.n_blocks, self.per_block,
+                               {"size": SIZES_VARIATION_SCALE})
 
     # -- particles -----------------------------------------------------------------------
     def particle_sizes(self) -> np.ndarray:
@@ -166,7 +167,7 @@ class Session:
         self.stats.plans.append(list(plan.loads))
         self.stats.planning_s += time.perf_counter() - t0
 
-    def _key_pose(self, config: Configuration, action: str) -> tuple[np.ndarray, np.ndarray | None]:
+    def _real_pose(self, config: Configuration, action: str) -> tuple[np.ndarray, np.ndarray | None]:
         """Step 2 of the loop: the real pose x and (for TMOC) each particle's x_i."""
         spec = self.domain.spec
         mode = self.agent.grasp
@@ -229,7 +230,7 @@ class Session:
             self._replan()
         action = self.plan[0]
         config = self.observation.configuration
-        x, xs = self._key_pose(config, action)
+        x, xs = self._real_pose(config, action)
         pre = self.domain.pre_pose(config, action, x)
         transit = self._transit(config, pre)
         traj = self.domain.action_trajectory(config, action, x, transit)
@@ -410,9 +411,7 @@ class Session:
             step = self.next_step()
             if step is None:          # done before acting (e.g. nothing left to deliver)
                 return self._finish_episode()
-            t0 = time.perf_counter()
             obs = reality.execute(step.trajectory, step.action)
-            self.stats.real_s += time.perf_counter() - t0
             report = self.observe(obs)
             if "episode" in report:
                 return report["episode"]

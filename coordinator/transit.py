@@ -21,6 +21,14 @@ WORKSPACE = Bounds(np.array([-0.5, -0.6, 0.0, -np.pi]), np.array([1.2, 0.6, 0.6,
 RRT_ITERATIONS, RRT_MAX_ITERATIONS, RRT_RESOLUTION = 200, 600, 0.05
 
 
+def workspace_of(physics) -> Bounds:
+    """The motion planner's bounds for a physics half: its ``workspace`` (plain low/high
+    arrays, ``sim_workers.configuration.Workspace``: a domain may need more room) or the
+    default ``WORKSPACE``."""
+    own = getattr(physics, "workspace", None)
+    return WORKSPACE if own is None else Bounds(np.asarray(own.low), np.asarray(own.high))
+
+
 def transit_checker(domain, config: Configuration, size: float, held: float) -> Callable[[np.ndarray], bool]:
     """is_valid(q) for the gripper at q among the domain's obstacles in `config` (blocks of
     `size`), with a block of size `held` in the hand (0: none)."""
@@ -43,7 +51,7 @@ def plan_pre_pose_transit(domain, config: Configuration, pre: np.ndarray, size: 
     """The transit from the robot in `config` to `pre` (see ``planner.motion.plan_transit``;
     `seed` is drawn only if RRT* runs)."""
     return plan_transit(config.robot[:4], pre[:4], transit_checker(domain, config, size, held),
-                        getattr(domain, "workspace", WORKSPACE), seed=seed,   # a domain may need more room
+                        workspace_of(domain), seed=seed,
                         candidates=transit_candidates(domain, config.robot, pre),
                         iterations=RRT_ITERATIONS, max_iterations=RRT_MAX_ITERATIONS,
                         resolution=RRT_RESOLUTION)

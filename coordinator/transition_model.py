@@ -27,13 +27,13 @@ evidence has no natural visit count and a jump at m would make plans flip abrupt
 from __future__ import annotations
 
 import math
-import re
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Callable, Sequence
 
 import numpy as np
 
 from planner.container import context_of as _container_context_of
+from planner.terms import parse_term   # re-exported: the one parser of ground terms
 
 if TYPE_CHECKING:  # only for the type hint of from_experience; no import cycle at runtime
     from coordinator.experience import ExperiencePool
@@ -41,18 +41,6 @@ if TYPE_CHECKING:  # only for the type hint of from_experience; no import cycle 
 __all__ = ["ACTION_NAMES", "TransitionModel", "container_contexts", "context_of", "parse_term"]
 
 ACTION_NAMES = ("pickup", "stack", "push")
-_TERM = re.compile(r"^\s*([a-z_][A-Za-z0-9_]*)\s*\((.*)\)\s*$")
-
-
-def parse_term(term: str) -> tuple[str, tuple[str, ...]]:
-    """``"push(r,c,init,goal)"`` -> ``("push", ("r", "c", "init", "goal"))`` (flat terms)."""
-    m = _TERM.match(term)
-    if m is None:
-        raise ValueError(f"not a ground term: {term!r}")
-    args = tuple(a.strip() for a in m.group(2).split(",")) if m.group(2).strip() else ()
-    return m.group(1), args
-
-
 # The container's context map moved to its task half; re-exported for existing callers.
 context_of = _container_context_of
 

@@ -3,24 +3,19 @@
 (``planner.task_planner``), behind the one protocol the loop speaks."""
 from __future__ import annotations
 
-import re
 from typing import Iterable, Mapping, Sequence
 
 import numpy as np
 
-from planner import symbolic, task_planner
+from planner import symbolic, task_model, task_planner
 from planner.domain import Context, UnknownAction
+from planner.terms import parse_term
 
-_TERM = re.compile(r"^\s*([a-z_][A-Za-z0-9_]*)\s*\((.*)\)\s*$")
 _ARITY = {"pickup": 3, "stack": 3, "push": 4}
 
 
 def _parse_term(term: str) -> tuple[str, tuple[str, ...]]:
-    m = _TERM.match(term)
-    if m is None:
-        raise UnknownAction(f"not a ground term: {term!r}")
-    args = tuple(a.strip() for a in m.group(2).split(",")) if m.group(2).strip() else ()
-    return m.group(1), args
+    return parse_term(term, "action", UnknownAction)
 
 
 def _load(state: frozenset[str], container: str) -> int:
@@ -63,7 +58,7 @@ class ContainerTask:
 
     name = "container"
     action_names = ("pickup", "stack", "push")
-    default_costs = dict(task_planner.DEFAULT_COSTS)
+    default_costs = dict(task_model.DEFAULT_COSTS)
 
     def initial_state(self, n_blocks: int) -> frozenset[str]:
         return symbolic.initial_state(n_blocks)
@@ -89,7 +84,7 @@ class ContainerTask:
         return context_of(state, action)
 
     def optimistic_transition(self, n_blocks: int) -> dict:
-        return task_planner.optimistic_transition(n_blocks)
+        return task_model.optimistic_transition(n_blocks)
 
     def plan(self, state: Iterable[str], transition: Mapping, costs: Mapping | None = None, *,
              block_classes: Mapping[str, str] | None = None, max_steps: int | None = None,
@@ -103,7 +98,7 @@ class ContainerTask:
 
     def expected_utility(self, state: Iterable[str], actions: Sequence[str], transition: Mapping,
                          costs: Mapping | None = None) -> float:
-        return task_planner.expected_utility(state, actions, transition, costs)
+        return task_model.expected_utility(state, actions, transition, costs)
 
     def step_reward(self, state: frozenset[str], action: str, next_state: frozenset[str],
                     costs: Mapping[str, float]) -> tuple[float, dict]:

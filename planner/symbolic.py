@@ -15,6 +15,8 @@ from __future__ import annotations
 import re
 from typing import Iterable
 
+from planner.terms import format_term, parse_term  # noqa: F401  (format_term: re-exported)
+
 ROBOT = "r"
 CONTAINER = "c"
 BLOCK_PLACES = ("init", "table", "goal")
@@ -22,7 +24,6 @@ CONTAINER_PLACES = ("init", "goal")
 PICKUP_PLACES = ("init", "table")
 
 _BLOCK_RE = re.compile(r"b[1-9][0-9]*")
-_TERM_RE = re.compile(r"([a-z_][a-zA-Z0-9_]*)\(([^()]*)\)")
 _ATOM_TEXT_RE = re.compile(r"[a-z_][a-zA-Z0-9_]*\s*\([^()]*\)")
 
 # predicate -> arity; the only atoms a container state may hold.
@@ -34,17 +35,11 @@ _ACTIONS = {"pickup": 3, "stack": 3, "push": 4}
 # --------------------------------------------------------------------------- parsing
 
 def _parse_term(text: str, kind: str) -> tuple[str, tuple[str, ...]]:
-    """Split ``name(a,b)`` into its name and arguments; spaces are tolerated."""
-    if not isinstance(text, str):
-        raise ValueError(f"{kind} must be a string, got {text!r}")
-    compact = "".join(text.split()).rstrip(".")
-    match = _TERM_RE.fullmatch(compact)
-    if match is None:
-        raise ValueError(f"malformed {kind} {text!r}: expected name(arg,...)")
-    args = tuple(match.group(2).split(","))
-    if any(not a for a in args):
+    """``planner.terms.parse_term`` plus this model's rule: every term has arguments, none empty."""
+    name, args = parse_term(text, kind)
+    if not args or any(not a for a in args):
         raise ValueError(f"malformed {kind} {text!r}: empty argument")
-    return match.group(1), args
+    return name, args
 
 
 def is_block(name: str) -> bool:
@@ -82,11 +77,6 @@ def parse_atom(text: str) -> tuple[str, tuple[str, ...]]:
     else:
         raise ValueError(f"{bad}: objects are {ROBOT}, {CONTAINER} and blocks b1..bN")
     return name, args
-
-
-def format_term(name: str, args: Iterable[str]) -> str:
-    """The canonical text of a term: ``name(a,b)`` without spaces."""
-    return f"{name}({','.join(args)})"
 
 
 def parse_action(text: str) -> tuple[str, tuple[str, ...]]:

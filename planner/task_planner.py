@@ -3,22 +3,15 @@
 The plan is found by clingo (planner/asp/container.lp) in multi-shot incremental mode with
 ``#minimize`` over integer-scaled weights written as facts from the transition model T and
 the costs (DESIGN.md sections 3 and 7). The encoding counts interchangeable blocks; this
-module names them afterwards and recomputes the expected utility exactly in Python.
-
-Expected utility of a plan (DESIGN.md section 3)::
-
-    sum over actions a of  -cost(a) - (1 - p(a)) * fail + p(a) * bonus(a)
-
-with p(a) from T in the action's context (pickup: the block's class; stack: the number of
-blocks already in the container; push to goal: its load k, bonus deliver * k; the return
-push and an empty push to goal: p = 1, bonus 0).
+module names them afterwards and recomputes the expected utility exactly in Python
+(``planner.task_model``: T and costs validated, the expected utility of a plan). The GP
+baseline's random satisficing plan is here too: it is drawn over the same problem.
 
 Everything returned is plain Python data; a fresh ``clingo.Control`` is made per call
 (clingo objects do not pickle and keep their symbols for the process lifetime).
 """
 from __future__ import annotations
 
-import math
 import numbers
 import time
 from dataclasses import dataclass
@@ -29,208 +22,20 @@ import clingo
 import numpy as np
 
 from planner import symbolic
+# The task model (validation, expected utility) lives in planner.task_model; its names are
+# imported here for this module and for existing callers (planner.stack_and_push, tests).
+from planner.task_model import (DEFAULT_CLASS, DEFAULT_COSTS, TRANSITION_FIELDS,  # noqa: F401
+                                Plan, PlanningError, _block_classes, _checked_state, _evaluate,
+                                _is_number, _Model, _validate_transition, expected_utility,
+                                optimistic_transition)
 
 ENCODING = Path(__file__).with_name("asp") / "container.lp"
-DEFAULT_COSTS: dict[str, float] = {"pickup": 15.0, "stack": 10.0, "push": 30.0, "fail": 50.0,
-                                   "deliver": 40.0, "all_delivered": 80.0}
-DEFAULT_CLASS = "block"
-TRANSITION_FIELDS = ("pickup", "stack", "push")
 DEFAULT_TIME_LIMIT_S = 30.0
 # Weights are scaled by at most this much before rounding: the rounding error of a plan's
 # value is then below 0.5e-6 per action, far under any difference the planner cares for.
 MAX_SCALE = 10**6
 # clingo's numbers are 32-bit; keep every weight fact well inside.
 _WEIGHT_LIMIT = 2**30
-
-
-class PlanningError(ValueError):
-    """The planner cannot answer: bad T or costs, a malformed state, an unreachable goal."""
-
-
-@dataclass(frozen=True)
-class Plan:
-    """A plan and what it is worth under the transition model and costs it was made for."""
-
-    actions: tuple[str, ...]      # ASP terms in text, blocks named
-    loads: tuple[int, ...]        # blocks carried by each push to goal, in order
-    expected_utility: float       # under T and costs (float, unscaled)
-    optimal: bool                 # optimality proven by clingo
-    solve_ms: float               # wall time of the call, grounding included
-
-    def to_dict(self) -> dict:
-        """JSON-ready form; ``plan`` is the list of actions."""
-        return {"plan": list(self.actions), "loads": list(self.loads),
-                "expected_utility": float(self.expected_utility),
-                "optimal": bool(self.optimal), "solve_ms": float(self.solve_ms)}
-
-
-# --------------------------------------------------------------------------- validation
-
-@dataclass(frozen=True)
-class _Model:
-    """A validated transition model and cost table for one state's blocks."""
-
-    p_pickup: dict[str, float]    # class -> p
-    p_stack: np.ndarray           # [p_0 .. p_{N-1}], index = blocks already in the container
-    p_push: np.ndarray            # [p_1 .. p_N], index k-1 = load k
-    costs: dict[str, float]
-
-
-def optimistic_transition(n_blocks: int) -> dict:
-    """T with every action succeeding (how TMOC starts, R-max style)."""
-    if isinstance(n_blocks, bool) or not isinstance(n_blocks, numbers.Integral) or n_blocks < 1:
-        raise PlanningError(f"n_blocks must be a positive integer, got {n_blocks!r}")
-    return {"pickup": 1.0, "stack": [1.0] * int(n_blocks), "push": [1.0] * int(n_blocks)}
-
-
-def _is_number(value: object) -> bool:
-    return isinstance(value, (numbers.Real, np.number)) and not isinstance(value, (bool, np.bool_))
-
-
-def _probability(value: object, field: str) -> float:
-    if not _is_number(value):
-        raise PlanningError(f"{field}: expected a probability, got {value!r}")
-    p = float(value)
-    if not (math.isfinite(p) and 0.0 <= p <= 1.0):
-        raise PlanningError(f"{field}: probability {p!r} is not in [0, 1]")
-    return p
-
-
-def _probabilities(value: object, field: str, n: int, meaning: str) -> np.ndarray:
-    if isinstance(value, (str, bytes, Mapping)) or not isinstance(value, (Sequence, np.ndarray)):
-        raise PlanningError(f"{field}: expected a list of {n} probabilities ({meaning}), "
-                            f"got {value!r}")
-    values = list(np.asarray(value, dtype=object).ravel()) if isinstance(value, np.ndarray) \
-        else list(value)
-    if len(values) != n:
-        raise PlanningError(f"{field}: expected {n} probabilities ({meaning}), got {len(values)}")
-    return np.array([_probability(v, f"{field}[{i}]") for i, v in enumerate(values)])
-
-
-def _validate_costs(costs: Mapping | None) -> dict[str, float]:
-    merged = dict(DEFAULT_COSTS)
-    if costs is None:
-        return merged
-    if not isinstance(costs, Mapping):
-        raise PlanningError(f"costs: expected a mapping, got {type(costs).__name__}")
-    for key, value in costs.items():
-        if key not in DEFAULT_COSTS:
-            raise PlanningError(f"costs: unknown field {key!r} (fields: "
-                                f"{', '.join(DEFAULT_COSTS)})")
-        # Non-negative costs make every wasted action a loss, which the encoding's
-        # dominance pruning and the stopping rule rely on.
-        if not _is_number(value) or not math.isfinite(float(value)) or float(value) < 0:
-            raise PlanningError(f"costs: {key!r} must be a finite number >= 0, got {value!r}")
-        merged[key] = float(value)
-    return merged
-
-
-def _validate_transition(transition: Mapping, n_blocks: int, classes: set[str],
-                         costs: Mapping | None) -> _Model:
-    if not isinstance(transition, Mapping):
-        raise PlanningError(f"transition: expected a mapping with fields "
-                            f"{', '.join(TRANSITION_FIELDS)}, got {type(transition).__name__}")
-    for key in transition:
-        if key not in TRANSITION_FIELDS:
-            raise PlanningError(f"transition: unknown field {key!r} (fields: "
-                                f"{', '.join(TRANSITION_FIELDS)})")
-    for key in TRANSITION_FIELDS:
-        if key not in transition:
-            raise PlanningError(f"transition: missing field {key!r}")
-    pickup = transition["pickup"]
-    if isinstance(pickup, Mapping):
-        for name in pickup:
-            if name not in classes:
-                raise PlanningError(f"pickup: unknown block class {name!r} (classes: "
-                                    f"{', '.join(sorted(classes))})")
-        missing = sorted(classes - set(pickup))
-        if missing:
-            raise PlanningError(f"pickup: no probability for block class {missing[0]!r}")
-        p_pickup = {name: _probability(p, f"pickup[{name!r}]") for name, p in pickup.items()}
-    else:
-        p = _probability(pickup, "pickup")
-        p_pickup = {name: p for name in classes}
-    return _Model(
-        p_pickup=p_pickup,
-        p_stack=_probabilities(transition["stack"], "stack", n_blocks,
-                               f"pile heights 0..{n_blocks - 1}"),
-        p_push=_probabilities(transition["push"], "push", n_blocks, f"loads 1..{n_blocks}"),
-        costs=_validate_costs(costs))
-
-
-def _checked_state(state: Iterable[str]) -> frozenset[str]:
-    """The canonical, checked and normalised state, or PlanningError naming the atom."""
-    if isinstance(state, str):
-        raise PlanningError("state: expected an iterable of atoms, got a string")
-    try:
-        return symbolic.normalize(symbolic.parse_state(list(state)))
-    except ValueError as exc:
-        raise PlanningError(str(exc)) from None
-
-
-def _block_classes(blocks: Sequence[str], block_classes: Mapping[str, str] | None) -> dict[str, str]:
-    """Class of every block; blocks not listed are of DEFAULT_CLASS."""
-    classes = {b: DEFAULT_CLASS for b in blocks}
-    if block_classes is None:
-        return classes
-    if not isinstance(block_classes, Mapping):
-        raise PlanningError("block_classes: expected a mapping block -> class name")
-    for block, name in block_classes.items():
-        if block not in classes:
-            raise PlanningError(f"block_classes: unknown block {block!r} (blocks: "
-                                f"{blocks[0]}..{blocks[-1]})")
-        if not isinstance(name, str) or not name:
-            raise PlanningError(f"block_classes[{block!r}]: expected a class name, got {name!r}")
-        classes[block] = name
-    return classes
-
-
-# --------------------------------------------------------------------------- utility
-
-def _action_value(name: str, args: tuple[str, ...], state: frozenset[str], model: _Model,
-                  classes: Mapping[str, str]) -> tuple[float, int | None]:
-    """Expected-utility contribution of an action in a state, and the load of a push to goal."""
-    costs = model.costs
-    if name == "pickup":
-        p = model.p_pickup[classes[args[1]]]
-        return -costs["pickup"] - (1.0 - p) * costs["fail"], None
-    loaded = sum(1 for atom in state if atom.startswith("at_container("))
-    if name == "stack":
-        p = float(model.p_stack[loaded])
-        return -costs["stack"] - (1.0 - p) * costs["fail"], None
-    if args[3] == "init" or loaded == 0:           # return push / empty push: p = 1, no bonus
-        return -costs["push"], (0 if args[3] == "goal" else None)
-    p = float(model.p_push[loaded - 1])
-    return -costs["push"] - (1.0 - p) * costs["fail"] + p * costs["deliver"] * loaded, loaded
-
-
-def _evaluate(state: frozenset[str], actions: Sequence[str], model: _Model,
-              classes: Mapping[str, str]) -> tuple[float, tuple[int, ...], frozenset[str]]:
-    """Simulate the actions: (expected utility, loads of the pushes to goal, final state)."""
-    terms, loads = [], []
-    for step, action in enumerate(actions, start=1):
-        try:
-            name, args = symbolic.parse_action(action)
-            value, load = _action_value(name, args, state, model, classes)
-            state = symbolic.apply(state, action)
-        except ValueError as exc:
-            raise PlanningError(f"step {step}: {exc}") from None
-        terms.append(value)
-        if load is not None:
-            loads.append(load)
-    return math.fsum(terms), tuple(loads), state
-
-
-def expected_utility(state: Iterable[str], actions: Sequence[str], transition: Mapping,
-                     costs: Mapping | None = None, *,
-                     block_classes: Mapping[str, str] | None = None) -> float:
-    """The expected utility of the actions from the state under T and the costs, by
-    simulating them (PlanningError names the step whose action is not applicable)."""
-    start = _checked_state(state)
-    blocks = symbolic.blocks(start)
-    classes = _block_classes(blocks, block_classes)
-    model = _validate_transition(transition, len(blocks), set(classes.values()), costs)
-    return _evaluate(start, list(actions), model, classes)[0]
 
 
 # --------------------------------------------------------------------------- the problem

@@ -2,8 +2,17 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
+
+
+class Workspace(NamedTuple):
+    """Bounds (x, y, z, yaw) a domain's motions need, as plain arrays: the coordinator makes
+    them the motion planner's ``planner.motion.Bounds`` (sim_workers never imports planner)."""
+
+    low: np.ndarray
+    high: np.ndarray
 
 
 @dataclass(frozen=True)

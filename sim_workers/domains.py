@@ -1,7 +1,9 @@
 """Domain registry (the physics half): a domain is data plus a few functions, by name.
 
-``load("container", n_blocks=8)`` returns a domain object; a second domain is an
-addition here (``register``), not a rewrite of the world or the shards. Domains from
+``load("container", n_blocks=8)`` returns a domain object; a second domain is a line in
+``BUILTIN`` (or a ``register`` call), not a rewrite of the world or the shards. Like
+Gymnasium's registry, the built-ins are ``"module:Class"`` strings imported on first use:
+this module imports no domain, so no domain imports it back to register itself. Domains from
 other installed packages are found through the ``tmoc.domains`` entry-point group: each
 entry point names a mapping ``{"physics": "module:Class", "task": "module:Class", ...}``
 (Gymnasium-style strings, imported only when the domain is used, so a Ray actor imports
@@ -35,6 +37,13 @@ class Domain(Protocol):
     def after_action(self, config: Configuration, action: str) -> Configuration: ...
     def measurements(self, config: Configuration) -> np.ndarray: ...
 
+
+# The physics halves shipped with the service (coordinator.domains joins them to their
+# task halves). Imported lazily by `load`.
+BUILTIN: dict[str, str] = {
+    "container": "sim_workers.container:ContainerDomain",
+    "stack_and_push": "sim_workers.stack_and_push:StackAndPushDomain",
+}
 
 _REGISTRY: dict[str, Callable[..., Domain]] = {}
 ENTRY_POINT_GROUP = "tmoc.domains"
@@ -73,27 +82,22 @@ def plugin_entries() -> dict[str, Mapping]:
 
 
 def is_registered(name: str) -> bool:
-    _ensure_builtin()
-    return name in _REGISTRY
+    return name in _REGISTRY or name in BUILTIN
 
 
 def names() -> list[str]:
-    _ensure_builtin()
-    return sorted(set(_REGISTRY) | set(plugin_entries()))
+    return sorted(set(_REGISTRY) | set(BUILTIN) | set(plugin_entries()))
 
 
 def load(name: str, **options) -> Domain:
     """The domain registered as `name`, built with `options` (e.g. n_blocks=8)."""
-    _ensure_builtin()
     if name not in _REGISTRY:
-        plugins = plugin_entries()
-        if name not in plugins:
-            known = sorted(set(_REGISTRY) | set(plugins))
-            raise ValueError(f"domain: unknown domain {name!r} (known: {', '.join(known)})")
-        register(name, import_string(plugins[name]["physics"]))
+        if name in BUILTIN:
+            register(name, import_string(BUILTIN[name]))
+        else:
+            plugins = plugin_entries()
+            if name not in plugins:
+                known = sorted(set(_REGISTRY) | set(BUILTIN) | set(plugins))
+                raise ValueError(f"domain: unknown domain {name!r} (known: {', '.join(known)})")
+            register(name, import_string(plugins[name]["physics"]))
     return _REGISTRY[name](**options)
-
-
-def _ensure_builtin() -> None:
-    from . import container  # noqa: F401  (registers itself)
-    from . import stack_and_push  # noqa: F401  (registers itself)

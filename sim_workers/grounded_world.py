@@ -357,3 +357,10 @@ class _Guard:
 
     def tripped(self, world: "GroundedWorld") -> bool:
         return any(d <= reach.GUARD_MARGIN and d < s for d, s in zip(self._clearance(), self.start))
+
+
+def act(world: GroundedWorld, domain, config: Configuration, believed: dict, action: str):
+    """Run `action` with Y at the believed properties; the free-space transit is skipped."""
+    key = domain.action_pose(believed, config, action)
+    traj = domain.action_trajectory(config, action, key)
+    return world.execute(traj, action, start_time=domain.transit_end_time(config, action, key))

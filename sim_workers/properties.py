@@ -50,6 +50,9 @@ def validate_positive(value, field: str, low: float = 0.0, high: float = np.inf)
 
 MIN_DENSITY = 1.0          # kg/m^3: below, not a solid block
 MAX_DENSITY = 25000.0      # above osmium
+# The "sizes" variation of the paper's experiments: block 1 is this much larger than the
+# others (every domain's true_properties, the loop's truth row, the experiments' errors).
+SIZES_VARIATION_SCALE = 1.2
 
 
 def validate_density(value, n_blocks: int) -> float | np.ndarray:

@@ -13,10 +13,6 @@ COLUMNS = ("t", "x", "y", "z", "yaw", "opening")
 EFFORT_COLUMNS = ("grip_force", "force_limit")
 
 
-def wrap_angle(a):
-    return (np.asarray(a) + np.pi) % (2 * np.pi) - np.pi
-
-
 def time_parameterize(waypoints: np.ndarray, speed: float, yaw_rate: float = 2.0,
                       finger_speed: float = 0.1, t0: float = 0.0, min_dt: float = 0.05) -> np.ndarray:
     """Give each (x, y, z, yaw, opening) waypoint the time the slowest channel needs.

@@ -9,7 +9,7 @@ from pathlib import Path
 
 from pydantic import ValidationError
 
-from ..cli import UsageError
+from . import UsageError
 
 _FLAGS = {"particles": "--particles", "episodes": "--episodes", "seed": "--seed",
           "max_steps": "--max-steps", "true_size": "--true-size"}

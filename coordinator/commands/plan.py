@@ -19,7 +19,7 @@ import math
 import re
 from pathlib import Path
 
-from coordinator.cli import UsageError
+from . import UsageError
 
 DEFAULT_BLOCKS = 8
 # Planner fields -> the flag a user of this command wrote them with.

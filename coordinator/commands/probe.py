@@ -23,7 +23,7 @@ import dataclasses
 import json
 import math
 
-from coordinator.cli import UsageError
+from . import UsageError
 
 ACTIONS = ("pickup", "stack", "push")   # the container's; each domain lists its own (stack_and_push adds stand)
 DEFAULT_LOAD = 4

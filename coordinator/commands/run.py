@@ -8,7 +8,7 @@ from pathlib import Path
 
 from pydantic import ValidationError
 
-from ..cli import UsageError
+from . import UsageError
 from ..run_config import RunConfig
 
 

@@ -14,7 +14,8 @@ import os
 import socket
 import sqlite3
 
-from ..cli import UsageError
+from ..run_config import field_bounds
+from . import UsageError
 
 
 def register(sub) -> None:
@@ -60,12 +61,11 @@ def check_args(args) -> str | None:
     for flag in ("max_particles", "max_episodes", "max_steps", "max_queued", "max_sessions"):
         if getattr(args, flag) < 1:
             raise UsageError(f"--{flag.replace('_', '-')}: must be at least 1 (got {getattr(args, flag)})")
-    if args.max_particles > 5000:
-        raise UsageError(f"--max-particles: {args.max_particles} is over 5000, the most a task can use")
-    if args.max_episodes > 100000:
-        raise UsageError(f"--max-episodes: {args.max_episodes} is over 100000, the most a task can use")
-    if args.max_steps > 1000:
-        raise UsageError(f"--max-steps: {args.max_steps} is over 1000, the most a task can use")
+    for flag, field in (("max_particles", "particles"), ("max_episodes", "episodes"), ("max_steps", "max_steps")):
+        most = field_bounds(field)[1]              # RunConfig's limit: the one place for it
+        if getattr(args, flag) > most:
+            raise UsageError(f"--{flag.replace('_', '-')}: {getattr(args, flag)} is over {most}, "
+                             "the most a task can use")
     if getattr(args, "max_frames", 0) < 0 or getattr(args, "max_frames", 0) > 10000:
         raise UsageError(f"--max-frames: must be in [0, 10000] (got {args.max_frames})")
     if args.shards is not None and args.shards < 1:

@@ -8,6 +8,8 @@ from pathlib import Path
 
 import numpy as np
 
+from sim_workers.properties import SIZES_VARIATION_SCALE
+
 from .catalogue import ROBOT_EPISODES, Spec, run_config
 from .runfiles import run_path
 from .true_T import Optimality
@@ -20,7 +22,7 @@ def posterior_error(posterior: dict, config: dict) -> float:
     larger, sim_workers.container) the mean over blocks of |block mean - block truth|."""
     if config["sizes_variation"] and len(posterior.get("mean") or []) == config["n_blocks"]:
         truth = np.full(config["n_blocks"], config["true_size"])
-        truth[0] *= 1.2
+        truth[0] *= SIZES_VARIATION_SCALE
         return float(np.mean(np.abs(np.array(posterior["mean"]) - truth)))
     return abs(posterior["size_mean"] - config["true_size"])
 

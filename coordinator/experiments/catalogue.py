@@ -17,10 +17,11 @@ from typing import Callable
 
 import numpy as np
 
+from ..agents import AGENTS as AGENT_SPECS
 from ..run_config import RunConfig
 
 ROBOT_EPISODES = tuple(range(0, 37, 4))            # Table II of the paper: episodes 0, 4, ..., 36
-AGENTS = ("tmoc", "tmp_rl", "gp", "toep")
+AGENTS = tuple(AGENT_SPECS)    # the agent registry's names, in its order
 PARTICLE_FRACTIONS = (0.25, 0.5, 0.75, 1.0)      # paper: N = 50, 100, 150, 200
 
 # Paper scale (a cluster): 15 runs of 5000 episodes, N = 200.
@@ -181,7 +182,7 @@ def run_config(spec: Spec, k: int, r: int) -> RunConfig:
               "seed": run_seed(spec.seed, EXPERIMENTS.index(spec.name), k, r),
               "particle_budget": spec.particle_budget, "min_particles": spec.min_particles}
     fields.update(s.overrides)
-    if fields["agent"] in ("tmp_rl", "toep"):
+    if not AGENT_SPECS[fields["agent"]].learn_belief:     # tmp_rl, toep
         fields["particles"] = 1          # they keep no particles; 1 keeps the config honest
     return RunConfig(**fields)
 

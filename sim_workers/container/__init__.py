@@ -6,9 +6,8 @@ import re
 
 import numpy as np
 
-from .. import domains
 from ..configuration import Configuration
-from ..properties import MAX_DENSITY, MIN_DENSITY, PropertyError, block_properties
+from ..properties import MAX_DENSITY, MIN_DENSITY, SIZES_VARIATION_SCALE, PropertyError, block_properties
 from . import probes, scene, state_mapping, trajectories
 from .spec import ContainerSpec
 
@@ -54,7 +53,7 @@ class ContainerDomain:
         """The hidden truth: all blocks `true_size`, or (variation "sizes") one 20 % larger."""
         sizes = np.full(self.spec.n_blocks, self.spec.true_size)
         if sizes_variation:
-            sizes[0] *= 1.2
+            sizes[0] *= SIZES_VARIATION_SCALE
         return {"block_sizes": sizes}
 
     def properties(self, props: dict) -> dict:
@@ -186,6 +185,3 @@ class ContainerDomain:
             raise ValueError(f"action: pickup from {args[2]!r} (expected init or table)")
         if name == "push" and not all(re.fullmatch(r"init|goal", a) for a in args[2:4]):
             raise ValueError(f"action: push between {args[2:4]} (expected init/goal)")
-
-
-domains.register("container", ContainerDomain)

@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 
 from ..configuration import Configuration, quat_from_yaw
-from ..grounded_world import GroundedWorld
-from ..probe import PLACEMENT_JITTER_M, YAW_JITTER_RAD, act, jitter_planar
+from ..grounded_world import GroundedWorld, act
+from ..reality_gap import PLACEMENT_JITTER_M, YAW_JITTER_RAD, jitter_planar
 
 PROBE_ACTIONS = ("pickup", "stack", "push")
 

@@ -26,7 +26,6 @@ class SceneHandles:
     palm_offset: float           # palm centre above the fingertip tool point
     finger_inner: float          # joint position at which a finger's inner face is at y = 0
     grip_force: float
-    finger_speed: float
     time_step: float
 
     @property
@@ -141,4 +140,4 @@ def build_scene(client: int, spec: ContainerSpec, sizes: np.ndarray, masses: np.
     gripper, fingers, cid = build_gripper(client, spec)
     return SceneHandles(client, table, container, blocks, gripper, fingers, cid,
                         spec.palm_offset, spec.finger_half[1], spec.grip_force,
-                        spec.finger_speed, spec.time_step)
+                        spec.time_step)

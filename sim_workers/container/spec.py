@@ -1,7 +1,8 @@
 """The container domain's scene as data: geometry, physics settings, locations (design sec. 3)."""
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
+from typing import ClassVar
 
 import numpy as np
 
@@ -63,7 +64,21 @@ class ContainerSpec:
     approach_speed: float = 0.20    # m/s, the last 8 cm down to a grasp or release
     lift_speed: float = 0.30        # m/s, up and away once the fingers have acted
     settle_s: float = 0.5           # at most this long after the trajectory (stops at rest)
-    extra: dict = field(default_factory=dict, compare=False)
+
+    # Thresholds of Y^-1 and margins of the action skeletons (metres, seconds): the domain's
+    # data, named here. ClassVar, not fields: they are not options a run may set.
+    CONTAINER_XY_MARGIN: ClassVar[float] = 0.004    # a block this far past the inner walls is in
+    CONTAINER_TOP_MARGIN: ClassVar[float] = 0.01    # above the tallest possible pile: not in
+    GOAL_BAND: ClassVar[float] = 0.1                # past delivered_x minus this: delivered
+    INIT_RADIUS: ClassVar[float] = 0.02             # this close to its start slot: at init
+    MIN_GRASP_Z: ClassVar[float] = 0.003            # fingertips never lower than this
+    PUSH_CLEARANCE: ClassVar[float] = 0.012         # fingers this far behind the outer wall
+    START_OPENING_MARGIN: ClassVar[float] = 0.005   # the start opening: max_opening minus this
+    PUSH_PRE_HEIGHT: ClassVar[float] = 0.12         # a push's pre-pose above its key pose
+    GRIP_DWELL_S: ClassVar[float] = 0.3             # after closing: let the grip settle
+    RELEASE_DWELL_S: ClassVar[float] = 0.2          # after opening: let the block settle
+    STACK_LEAVE_CLEARANCE: ClassVar[float] = 0.10   # leave a stack at least this far up
+    PUSH_BACK_OFF: ClassVar[float] = 0.03           # after a stroke, back off this far
 
     @property
     def object_names(self) -> list[str]:

@@ -9,30 +9,14 @@ observation fixes only where things are, not how big they are).
 """
 from __future__ import annotations
 
-import re
-
 import numpy as np
 
 from ..configuration import Configuration, face_yaw, quat_from_yaw, rotate_z, yaw_of
+from ..terms import block_index, parse_action  # noqa: F401  (used as state_mapping.*)
 from .spec import ContainerSpec
-
-_ACTION = re.compile(r"^(pickup|stack|push)\(([^()]*)\)$")
 
 # Labels of where a block is; Y^-1 turns them into atoms.
 HELD, CONTAINER, GOAL, INIT, TABLE = "held", "container", "goal", "init", "table"
-
-
-def parse_action(action: str) -> tuple[str, list[str]]:
-    m = _ACTION.match(action.replace(" ", ""))
-    if not m:
-        raise ValueError(f"action: cannot parse {action!r}")
-    return m.group(1), m.group(2).split(",")
-
-
-def block_index(spec: ContainerSpec, name: str) -> int:
-    if not re.fullmatch(r"b\d+", name) or not 1 <= int(name[1:]) <= spec.n_blocks:
-        raise ValueError(f"action: unknown block {name!r}")
-    return int(name[1:]) - 1
 
 
 def container_location(spec: ContainerSpec, config: Configuration) -> str:
@@ -42,14 +26,23 @@ def container_location(spec: ContainerSpec, config: Configuration) -> str:
     return "goal" if d_goal < d_init else "init"
 
 
+# The box around the fingertips where a block counts as held (metres). The floating gripper
+# is the same in both built-in domains, so stack_and_push reads held blocks with this too.
+HAND_OPEN_MARGIN = 0.01          # opening above max_opening minus this: nothing is gripped
+HAND_X_MARGIN = 0.012            # beyond the finger's half thickness, across the fingers
+HAND_HALF_Y = 0.045              # along the fingers (half the widest opening)
+HAND_DZ = (-0.05, 0.035)         # block centre relative to the tool point
+HAND_MIN_Z = 0.06                # a held block is lifted off the floor
+
+
 def _in_hand(spec: ContainerSpec, config: Configuration, p: np.ndarray) -> bool:
     g = config.robot
-    if g[4] > spec.max_opening - 0.01:       # fingers wide open: nothing is gripped
+    if g[4] > spec.max_opening - HAND_OPEN_MARGIN:       # fingers wide open: nothing is gripped
         return False
     local = rotate_z(p[:2] - g[:2], -g[3])
     dz = p[2] - g[2]
-    return (abs(local[0]) < spec.finger_half[0] + 0.012 and abs(local[1]) < 0.045
-            and -0.05 < dz < 0.035 and p[2] > 0.06)
+    return (abs(local[0]) < spec.finger_half[0] + HAND_X_MARGIN and abs(local[1]) < HAND_HALF_Y
+            and HAND_DZ[0] < dz < HAND_DZ[1] and p[2] > HAND_MIN_Z)
 
 
 def _in_container(spec: ContainerSpec, config: Configuration, p: np.ndarray) -> bool:
@@ -58,8 +51,9 @@ def _in_container(spec: ContainerSpec, config: Configuration, p: np.ndarray) -> 
     ix, iy = spec.inner_half
     # Nothing above the tallest possible pile (n blocks of the largest prior size in two
     # columns) is in the container, e.g. a block carried over it.
-    top = c[2] + spec.floor_top + spec.prior_high * ((spec.n_blocks + 1) // 2) + 0.01
-    return abs(local[0]) < ix + 0.004 and abs(local[1]) < iy + 0.004 and c[2] < p[2] < top
+    top = c[2] + spec.floor_top + spec.prior_high * ((spec.n_blocks + 1) // 2) + spec.CONTAINER_TOP_MARGIN
+    margin = spec.CONTAINER_XY_MARGIN
+    return abs(local[0]) < ix + margin and abs(local[1]) < iy + margin and c[2] < p[2] < top
 
 
 def block_labels(spec: ContainerSpec, config: Configuration) -> list[str]:
@@ -71,9 +65,9 @@ def block_labels(spec: ContainerSpec, config: Configuration) -> list[str]:
             labels.append(HELD)
         elif _in_container(spec, config, p):
             labels.append(CONTAINER)
-        elif p[0] > spec.delivered_x - 0.1:
+        elif p[0] > spec.delivered_x - spec.GOAL_BAND:
             labels.append(GOAL)
-        elif np.linalg.norm(p[:2] - spec.init_slot(i)) < 0.02:
+        elif np.linalg.norm(p[:2] - spec.init_slot(i)) < spec.INIT_RADIUS:
             labels.append(INIT)
         else:
             labels.append(TABLE)
@@ -118,7 +112,7 @@ def action_pose(spec: ContainerSpec, sizes: np.ndarray, config: Configuration, a
         i = block_index(spec, args[1])
         p = config.objects[1 + i]
         s = sizes[i]
-        z = max(s - spec.grip_depth, 0.003)
+        z = max(s - spec.grip_depth, spec.MIN_GRASP_Z)
         return np.array([p[0], p[1], z, _grasp_yaw(p[3:]), spec.open_ratio * s])
     if name == "stack":
         i = block_index(spec, args[1])
@@ -139,7 +133,7 @@ def action_pose(spec: ContainerSpec, sizes: np.ndarray, config: Configuration, a
     c = config.objects[0]
     target = spec.location_xy(args[3])
     d = 1.0 if target[0] >= c[0] else -1.0
-    x = c[0] - d * (spec.outer_half[0] + spec.finger_half[0] + 0.012)
+    x = c[0] - d * (spec.outer_half[0] + spec.finger_half[0] + spec.PUSH_CLEARANCE)
     return np.array([x, c[1], spec.push_tip_z, 0.0, spec.push_opening])
 
 
@@ -157,7 +151,7 @@ def action_poses(spec: ContainerSpec, sizes: np.ndarray, config: Configuration, 
         s = sizes[:, i]
         out = np.empty((n, 5))
         out[:, 0], out[:, 1], out[:, 3] = p[0], p[1], _grasp_yaw(p[3:])
-        out[:, 2] = np.maximum(s - spec.grip_depth, 0.003)
+        out[:, 2] = np.maximum(s - spec.grip_depth, spec.MIN_GRASP_Z)
         out[:, 4] = spec.open_ratio * s
         return out
     if name == "stack":
@@ -243,5 +237,5 @@ def initial_configuration(spec: ContainerSpec, sizes: np.ndarray) -> Configurati
     for i in range(spec.n_blocks):
         xy = spec.init_slot(i)
         objects[1 + i] = [xy[0], xy[1], sizes[i] / 2, 0, 0, 0, 1]
-    robot = np.array([x, y, spec.carry_height, 0.0, spec.max_opening - 0.005])
+    robot = np.array([x, y, spec.carry_height, 0.0, spec.max_opening - spec.START_OPENING_MARGIN])
     return Configuration(robot, objects)

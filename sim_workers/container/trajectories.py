@@ -21,7 +21,7 @@ def pre_pose(spec: ContainerSpec, action: str, key: np.ndarray, holding: bool) -
     """The pose above the key pose where the transit ends and the approach starts."""
     name, _ = parse_action(action)
     pre = key.copy()
-    pre[2] = key[2] + (0.12 if name == "push" else spec.approach_height)
+    pre[2] = key[2] + (spec.PUSH_PRE_HEIGHT if name == "push" else spec.approach_height)
     if name == "stack" or holding:
         pre[4] = CLOSED
     return pre
@@ -63,22 +63,22 @@ def _action_trajectory(spec, config, action, key, transit):
         closed = key.copy(); closed[4] = CLOSED
         lifted = closed.copy(); lifted[2] = spec.carry_height
         tail = tr.time_parameterize(np.array([pre, key]), spec.approach_speed)
-        grip = tr.time_parameterize(np.array([key, closed]), 1.0, finger_speed=0.15)
-        grip = np.vstack([grip, [grip[-1, 0] + 0.3, *closed]])  # dwell: let the grip settle
+        grip = tr.time_parameterize(np.array([key, closed]), 1.0, finger_speed=spec.finger_speed)
+        grip = np.vstack([grip, [grip[-1, 0] + spec.GRIP_DWELL_S, *closed]])  # dwell: let the grip settle
         lift = tr.time_parameterize(np.array([closed, lifted]), spec.lift_speed)
         return tr.concatenate(move, tail, grip, lift), t_pre
     if name == "stack":
         down = key.copy(); down[4] = CLOSED
-        up = key.copy(); up[2] = max(spec.carry_height, key[2] + 0.10)
+        up = key.copy(); up[2] = max(spec.carry_height, key[2] + spec.STACK_LEAVE_CLEARANCE)
         tail = tr.time_parameterize(np.array([pre, down]), spec.approach_speed)
-        release = tr.time_parameterize(np.array([down, key]), 1.0, finger_speed=0.15)
-        release = np.vstack([release, [release[-1, 0] + 0.2, *key]])
+        release = tr.time_parameterize(np.array([down, key]), 1.0, finger_speed=spec.finger_speed)
+        release = np.vstack([release, [release[-1, 0] + spec.RELEASE_DWELL_S, *key]])
         leave = tr.time_parameterize(np.array([key, up]), spec.lift_speed)
         return tr.concatenate(move, tail, release, leave), t_pre
     # push: descend behind the container, stroke to the target, back off and rise.
     end = key.copy(); end[0] = push_end_x(spec, config, action, key)
     d = np.sign(end[0] - key[0]) or 1.0
-    back = end.copy(); back[0] -= d * 0.03
+    back = end.copy(); back[0] -= d * spec.PUSH_BACK_OFF
     up = back.copy(); up[2] = spec.carry_height
     descend = tr.time_parameterize(np.array([pre, key]), 2 * spec.approach_speed)
     stroke = tr.trapezoid_stroke(key, end, spec.push_speed, spec.push_accel, 0.0)

@@ -7,10 +7,9 @@ import dataclasses
 
 import numpy as np
 
-from .. import domains
-from ..configuration import Configuration
+from ..configuration import Configuration, Workspace
 from ..container.scene import GRIPPER_MASS
-from ..properties import MAX_DENSITY, MIN_DENSITY, PropertyError, PropertySpace, block_properties
+from ..properties import MAX_DENSITY, MIN_DENSITY, SIZES_VARIATION_SCALE, PropertyError, PropertySpace, block_properties
 from . import efforts, probes, scene, state_mapping, trajectories
 from .spec import StackAndPushSpec
 
@@ -66,12 +65,10 @@ class StackAndPushDomain:
         return self.spec.block_names
 
     @property
-    def workspace(self):
+    def workspace(self) -> Workspace:
         """The motion planner's bounds: room above a tower of every block at the largest
         prior size plus a held block and the palm (the loop's default stops at 0.6 m)."""
-        from planner.motion import Bounds   # the planner half; imported only when asked
-
-        return Bounds(np.array([-0.5, -0.6, 0.0, -np.pi]), np.array([1.2, 0.6, 0.75, np.pi]))
+        return Workspace(np.array([-0.5, -0.6, 0.0, -np.pi]), np.array([1.2, 0.6, 0.75, np.pi]))
 
     @property
     def L(self) -> PropertySpace:
@@ -86,7 +83,7 @@ class StackAndPushDomain:
         """The hidden truth: all blocks `true_size`, or (variation "sizes") one 20 % larger."""
         sizes = np.full(self.spec.n_blocks, self.spec.true_size)
         if sizes_variation:
-            sizes[0] *= 1.2
+            sizes[0] *= SIZES_VARIATION_SCALE
         return {"block_sizes": sizes, "density": self.spec.density}
 
     def properties(self, props: dict) -> dict:
@@ -392,6 +389,3 @@ def _half_heights(objects: np.ndarray, rows: list[int]) -> dict[int, float]:
         h = z - (objects[below[-1], 2] + half[below[-1]]) if below else z
         half[i] = float(np.clip(h, 0.005, 0.05))
     return half
-
-
-domains.register("stack_and_push", StackAndPushDomain)

@@ -5,15 +5,15 @@ kind is set up in a true world and judged through Y^-1.
 tower pushed by ``push``, the tower left alone by ``stand``. Every tower block is placed
 with the same jitter as the supply row (``PLACEMENT_JITTER_M``, ``YAW_JITTER_RAD``), so a
 tall tower is a little crooked, as a stacked one is; with the friction jitter of
-``sim_workers.probe.jittered_domain`` that is what grades the push curve.
+``sim_workers.reality_gap.jittered_domain`` that is what grades the push curve.
 """
 from __future__ import annotations
 
 import numpy as np
 
 from ..configuration import Configuration, quat_from_yaw
-from ..grounded_world import GroundedWorld
-from ..probe import PLACEMENT_JITTER_M, YAW_JITTER_RAD, act, jitter_planar
+from ..grounded_world import GroundedWorld, act
+from ..reality_gap import PLACEMENT_JITTER_M, YAW_JITTER_RAD, jitter_planar
 
 PROBE_ACTIONS = ("pickup", "stack", "push", "stand")
 STAND_S = 2.0            # how long a tower is left alone in the `stand` probe

@@ -32,7 +32,6 @@ class SceneHandles:
     palm_offset: float
     finger_inner: float
     grip_force: float
-    finger_speed: float
     time_step: float
 
     @property
@@ -72,4 +71,4 @@ def build_scene(client: int, spec: StackAndPushSpec, sizes: np.ndarray, masses: 
     gripper, fingers, cid = build_gripper(client, spec)
     return SceneHandles(client, table, rail, blocks, gripper, fingers, cid,
                         spec.palm_offset, spec.finger_half[1], spec.grip_force,
-                        spec.finger_speed, spec.time_step)
+                        spec.time_step)

@@ -2,7 +2,7 @@
 physics settings (docs: /work/shared/DOMAINS.md section 3)."""
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -81,7 +81,6 @@ class StackAndPushSpec:
     approach_speed: float = 0.10    # m/s, the last 8 cm down to a grasp or release
     lift_speed: float = 0.30
     settle_s: float = 1.0           # at most this long after the trajectory (stops at rest)
-    extra: dict = field(default_factory=dict, compare=False)
 
     @property
     def object_names(self) -> list[str]:

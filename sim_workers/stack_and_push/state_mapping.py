@@ -9,15 +9,12 @@ hypothesis: the tower is restacked from the rail floor with the hypothesis' size
 """
 from __future__ import annotations
 
-import re
-
 import numpy as np
 
 from ..configuration import Configuration, quat_from_yaw, quat_to_matrix
 from ..container.state_mapping import _grasp_yaw, _in_hand
+from ..terms import block_index, parse_action  # noqa: F401  (used as state_mapping.*)
 from .spec import StackAndPushSpec
-
-_ACTION = re.compile(r"^(pickup|stack|push)\(([^()]*)\)$")
 
 HELD, TOWER, GOAL, INIT, RAIL, TABLE = "held", "tower", "goal", "init", "rail", "table"
 PICKUP_PLACES = (INIT, TABLE, RAIL)
@@ -30,19 +27,6 @@ ON_DXY = 0.02           # B on B2: centres this close in the plane
 ON_DZ = (0.005, 0.105)  # ... and B's centre this much higher (half sizes summed)
 INIT_RADIUS = 0.02
 FLOOR_Z = 0.055         # a block with its centre below this lies on the floor
-
-
-def parse_action(action: str) -> tuple[str, list[str]]:
-    m = _ACTION.match(action.replace(" ", ""))
-    if not m:
-        raise ValueError(f"action: cannot parse {action!r}")
-    return m.group(1), m.group(2).split(",")
-
-
-def block_index(spec: StackAndPushSpec, name: str) -> int:
-    if not re.fullmatch(r"b\d+", name) or not 1 <= int(name[1:]) <= spec.n_blocks:
-        raise ValueError(f"action: unknown block {name!r}")
-    return int(name[1:]) - 1
 
 
 def upright(quat: np.ndarray) -> bool:

@@ -106,7 +106,7 @@ def _action_trajectory(spec: StackAndPushSpec, config: Configuration, action: st
         closed = key.copy(); closed[4] = CLOSED
         lifted = closed.copy(); lifted[2] = spec.carry_height
         tail = tr.time_parameterize(np.array([pre, key]), spec.approach_speed)
-        grip = tr.time_parameterize(np.array([key, closed]), 1.0, finger_speed=0.15)
+        grip = tr.time_parameterize(np.array([key, closed]), 1.0, finger_speed=spec.finger_speed)
         grip = np.vstack([grip, [grip[-1, 0] + 0.3, *closed]])  # dwell: let the grip settle
         lift = tr.time_parameterize(np.array([closed, lifted]), spec.lift_speed)
         return _efforts(spec, tr.concatenate(move, tail, grip, lift), name, effort), t_pre
@@ -115,7 +115,7 @@ def _action_trajectory(spec: StackAndPushSpec, config: Configuration, action: st
         # Leave straight up, above the new top plus a carried block of any prior size.
         up = key.copy(); up[2] = max(spec.carry_height, key[2] + spec.prior_high + spec.carry_margin)
         tail = tr.time_parameterize(np.array([pre, down]), spec.approach_speed)
-        release = tr.time_parameterize(np.array([down, key]), 1.0, finger_speed=0.15)
+        release = tr.time_parameterize(np.array([down, key]), 1.0, finger_speed=spec.finger_speed)
         release = np.vstack([release, [release[-1, 0] + 0.3, *key]])  # let the block settle
         leave = tr.time_parameterize(np.array([key, up]), spec.lift_speed)
         return _efforts(spec, tr.concatenate(move, tail, release, leave), name, effort), t_pre

@@ -1,0 +1,90 @@
+"""The layering contract (pyproject.toml [tool.importlinter]) holds for the packages the
+suite imports, and it catches an arrow added the wrong way.
+
+api -> coordinator -> (planner | sim_workers): a module may import from its own layer and
+the layers below; planner and sim_workers never import each other; the one exception is
+``coordinator.commands.serve -> api`` (``tmoc serve`` starts the HTTP service). import-linter
+(a ``test`` extra) reads the contract; it runs in a subprocess whose working directory is
+put first on ``sys.path`` by the linter, so the tree it checks is chosen by that directory.
+"""
+from __future__ import annotations
+
+import importlib.util
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+pytest.importorskip("importlinter", reason="import-linter is a test extra: pip install '.[test]'")
+
+REPO = Path(__file__).resolve().parents[2]
+PACKAGES = ("api", "coordinator", "planner", "sim_workers")
+CONTRACT = "api -> coordinator -> (planner | sim_workers)"
+
+# Runs the linter and says where it found each package (the run must check what we mean).
+_RUN = """
+import importlib.util, sys
+from importlinter.cli import lint_imports
+for p in {packages!r}:
+    print("ORIGIN", p, list(importlib.util.find_spec(p).submodule_search_locations)[0])
+sys.exit(lint_imports(config_filename={config!r}, no_cache=True))
+"""
+
+
+def _origin(package: str) -> Path:
+    return Path(list(importlib.util.find_spec(package).submodule_search_locations)[0]).resolve()
+
+
+def _lint(cwd: Path, pythonpath: str | None) -> tuple[int, str, dict[str, Path]]:
+    """Exit code, output and the packages' origins of one `lint-imports` run from `cwd`."""
+    config = cwd / "importlinter.toml"
+    shutil.copyfile(REPO / "pyproject.toml", config)
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
+    if pythonpath:
+        env["PYTHONPATH"] = pythonpath
+    proc = subprocess.run([sys.executable, "-c", _RUN.format(packages=PACKAGES, config=str(config))],
+                          cwd=cwd, env=env, capture_output=True, text=True, timeout=300)
+    out = proc.stdout + proc.stderr
+    origins = {line.split()[1]: Path(line.split()[2]).resolve()
+               for line in proc.stdout.splitlines() if line.startswith("ORIGIN ")}
+    return proc.returncode, out, origins
+
+
+def test_the_packages_the_suite_imports_keep_the_layering(tmp_path):
+    """Linted where the suite imports from: the installed wheel (TMOC_TEST_SOURCE=1: the
+    PYTHONPATH the session was started with)."""
+    code, out, origins = _lint(tmp_path, os.environ.get("PYTHONPATH"))
+    assert origins == {p: _origin(p) for p in PACKAGES}, out
+    assert code == 0 and f"{CONTRACT} KEPT" in out, out
+
+
+@pytest.fixture(scope="module")
+def tree_copy(tmp_path_factory) -> Path:
+    """The four packages as the suite imports them, copied (sources only) to a tmp dir."""
+    root = tmp_path_factory.mktemp("layers")
+    for p in PACKAGES:
+        shutil.copytree(_origin(p), root / p, ignore=shutil.ignore_patterns("__pycache__", "*.pyc"))
+    return root
+
+
+@pytest.mark.parametrize("module, added, message", [
+    ("planner/symbolic.py", "import coordinator", "planner is not allowed to import coordinator"),
+    ("coordinator/session.py", "import api", "coordinator is not allowed to import api"),
+    ("sim_workers/probe.py", "from planner import symbolic", "sim_workers is not allowed to import planner"),
+    ("planner/container.py", "import sim_workers.domains", "planner is not allowed to import sim_workers"),
+])
+def test_an_arrow_the_wrong_way_breaks_the_contract(tree_copy, tmp_path, module, added, message):
+    """One import against the layering, appended to a copy: the contract is reported
+    broken, naming the layers and the importing module."""
+    root = tmp_path / "tree"
+    shutil.copytree(tree_copy, root)
+    path = root / module
+    path.write_text(path.read_text() + f"\n{added}  # against the layering\n")
+    code, out, origins = _lint(root, str(root))
+    assert origins["coordinator"] == (root / "coordinator").resolve(), out
+    importer = module[:-3].replace("/", ".")
+    assert code == 1 and f"{CONTRACT} BROKEN" in out, out
+    assert message in out and f"- {importer} -> " in out, out
