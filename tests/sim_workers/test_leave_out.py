@@ -107,3 +107,35 @@ def test_the_reach_keeps_what_the_gripper_sweeps_and_what_touches_it():
     path = np.array([[0.0, 0.0, 0.10], [0.0, 0.0, 0.05], [0.2, 0.0, 0.2]])
     keep = reach.kept_objects(boxes, gripper, np.array([0.0, 0.0, 0.10]), path)
     assert keep.tolist() == [True, True, False, True, False]
+
+
+def test_a_stack_onto_a_tower_keeps_every_outcome():
+    """stack_and_push also leaves bodies out of a stack: a real grasp of b3 (a pickup in a
+    full world) stacked onto a tower of two, across the prior."""
+    from sim_workers.stack_and_push.probes import tower_configuration
+
+    name = "stack_and_push"
+    domain = load(name)
+    assert "stack" in domain.leave_out_actions
+    truth = domain.true_properties()
+    two = tower_configuration(domain, truth["block_sizes"], 2, np.random.default_rng(0))
+    key = domain.action_pose(truth, two, ACTION)
+    with GroundedWorld(domain) as world:
+        world.reset(two, truth)
+        held = world.execute(domain.action_trajectory(two, ACTION, key), ACTION,
+                             start_time=domain.transit_end_time(two, ACTION, key))
+    assert "is_holding(r,b3)" in held.state
+    stack = "stack(r,b3,tower)"
+    config = held.configuration
+    key = domain.action_pose(truth, config, stack)
+    traj, t0 = domain.action_trajectory(config, stack, key), domain.transit_end_time(config, stack, key)
+    rows = _rows(domain, 8)
+    full = Shard(name, leave_out=False).simulate(config.to_array(), rows, stack, traj, t0)
+    shard = Shard(name, leave_out=True)
+    reduced = shard.simulate(config.to_array(), rows, stack, traj, t0)
+    assert list(reduced["states"]) == list(full["states"])
+    assert np.nanmax(np.abs(reduced["measurements"] - full["measurements"])) < 1e-4
+    with GroundedWorld(domain, leave_out=True) as world:
+        world.reset(config, truth)
+        world.execute(traj, stack, start_time=t0)
+        assert len(world._absent) >= 3              # the blocks on the table far away
