@@ -8,10 +8,11 @@ from typing import Callable
 
 import numpy as np
 
-from .fanout import ShardPool, init_ray
+from .fanout import ShardPool
 from .reality import SimulatedReality
 from .run_config import REALITY_STREAM, RunConfig, seed_stream
 from .session import Session
+from .shard_pools import ShardPools
 
 
 def reality_for(config: RunConfig, session: Session) -> SimulatedReality:
@@ -93,17 +94,17 @@ def run(config: RunConfig, *, ray_address: str | None = None,
     hostname, shards, particle_actions); the checkpoint carries them as ``nodes``.
     """
     t0 = time.perf_counter()
-    own_pool = pool is None
+    own_pools = None                 # this run's own Ray and pool when none is lent
     session = Session.from_checkpoint(resume["session"]) if resume else Session(config)
     tally = NodeTally(resume.get("nodes") if resume else None,
                       resume.get("reruns", 0) if resume else 0)
     if session.agent.learn_belief:
         if pool is None:
-            init_ray(ray_address)
-            pool = ShardPool(config.domain, domain_options(config), config.shards)
-        session.pool = _Tallied(pool, tally)
+            own_pools = ShardPools(ray_address, config.shards, max_pools=1, own_ray_thread=False)
+            pool = own_pools.acquire(config.domain, config.n_blocks, config.options)
+        session.shard_pool = _Tallied(pool, tally)
     else:
-        pool, own_pool = None, False
+        pool = None
     reality = reality_for(config, session)
     if frames is not None:
         from .frames import FrameRecorder
@@ -134,8 +135,8 @@ def run(config: RunConfig, *, ray_address: str | None = None,
         if session.frames is not None:
             session.frames.close()
         ray_s = pool.timings["ray_s"] - ray_s0 if pool is not None else 0.0
-        if own_pool and pool is not None:
-            pool.close()
+        if own_pools is not None:
+            own_pools.close()
     return result_record(config, session, nodes, time.perf_counter() - t0, ray_s, tally)
 
 

@@ -12,7 +12,9 @@ which share the session's state.
 from __future__ import annotations
 
 import time
+from contextlib import contextmanager
 from dataclasses import dataclass
+from typing import Iterator
 
 import numpy as np
 
@@ -49,7 +51,7 @@ class PendingStep:
 class Session:
     """One task's learning state: belief over L, experience pool, T, and the episode."""
 
-    def __init__(self, config: RunConfig, pool=None) -> None:
+    def __init__(self, config: RunConfig, shard_pool=None) -> None:
         self.config = config
         self.agent = agent_spec(config.agent)
         joined = load_domain(config.domain, n_blocks=config.n_blocks, **config.options)
@@ -57,7 +59,7 @@ class Session:
         self.task = joined.task               # symbolic model, T's contexts, utility, planner
         self.n_blocks = config.n_blocks
         self.costs = utility_terms(self.task, config)
-        self.pool = pool
+        self.shard_pool = shard_pool      # particle simulations (coordinator.fanout.ShardPool)
         self.rng = seed_stream(config.seed, AGENT_STREAM)
         # L: named properties, one value each for every block, or one per block with
         # the "sizes" variation; a row is property-major (sizes, then densities, ...).
@@ -247,7 +249,7 @@ class Session:
         before = self.observation
         success = observation.state == step.expected
         report = {"action": step.action, "success": success, "state": sorted(observation.state)}
-        if self.belief is not None and self.pool is not None:
+        if self.belief is not None and self.shard_pool is not None:
             report.update(self._reweight(before, step, observation))
         self.experience.add_real(before.state, step.action, observation.state, step.expected)
         self.transition = self._transition_model()
@@ -273,13 +275,13 @@ class Session:
         sizes = np.ascontiguousarray(self.belief.particles)
         start = before.configuration.to_array()
         if self.config.likelihood == "replay":
-            res = self.pool.simulate(start, sizes, step.action, step.trajectory, step.transit_end)
+            res = self.shard_pool.simulate(start, sizes, step.action, step.trajectory, step.transit_end)
         else:  # "paper": each particle runs its own trajectory to its own pose x_i
             trajs = np.array([self.domain.action_trajectory(before.configuration, step.action, xi)
                               for xi in step.particle_poses])
             t_pre = [self.domain.transit_end_time(before.configuration, step.action, xi)
                      for xi in step.particle_poses]
-            res = self.pool.simulate(start, sizes, step.action, trajs, np.array(t_pre))
+            res = self.shard_pool.simulate(start, sizes, step.action, trajs, np.array(t_pre))
         self.stats.physics_s += time.perf_counter() - t0
         self.particle_actions += len(sizes)
         self.particle_steps += int(res["steps"].sum())
@@ -372,6 +374,16 @@ class Session:
         self.episode += 1
         return record
 
+    @contextmanager
+    def using_shard_pool(self, shard_pool) -> Iterator["Session"]:
+        """Simulate particles on `shard_pool` inside the block, then go back to the previous
+        one (the service lends a shared pool to a session for one call at a time)."""
+        previous, self.shard_pool = self.shard_pool, shard_pool
+        try:
+            yield self
+        finally:
+            self.shard_pool = previous
+
     # -- checkpoints -----------------------------------------------------------------------
     def to_checkpoint(self) -> dict:
         """The whole learning state at an episode boundary, JSON-able: belief, experience
@@ -391,8 +403,8 @@ class Session:
         }
 
     @classmethod
-    def from_checkpoint(cls, data: dict, pool=None) -> "Session":
-        session = cls(stored_run_config(data["config"]), pool)
+    def from_checkpoint(cls, data: dict, shard_pool=None) -> "Session":
+        session = cls(stored_run_config(data["config"]), shard_pool)
         if data["belief"] is not None:
             session.belief = Belief.from_dict(data["belief"])
         session.experience = ExperiencePool.from_dict(data["experience"], session.task.context_of)

@@ -1,4 +1,5 @@
-"""Request and response models of the HTTP service (pydantic v2).
+"""Request models of the HTTP service (pydantic v2): task and session specs, and the
+robot's observations.
 
 Request models are strict (a string is not an integer, ``true`` is not a number) and
 forbid unknown fields, so whatever does not match the published schema is refused with a
@@ -8,15 +9,11 @@ forbid unknown fields, so whatever does not match the published schema is refuse
 """
 from __future__ import annotations
 
-from datetime import datetime, timezone
 from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, create_model, model_validator
 
-from coordinator.run_config import Costs, RunConfig, field_bounds
-
-TaskStatus = Literal["queued", "running", "succeeded", "failed", "cancelled"]
-SessionStatus = Literal["active", "finished", "closed"]
+from coordinator.run_config import Costs, RunConfig, field_bounds, stored_run_config
 
 # Configuration arrays: metres / radians / unit quaternions; generous but finite bounds.
 Coord = Annotated[float, Field(ge=-100.0, le=100.0, allow_inf_nan=False)]
@@ -26,12 +23,6 @@ Pose7 = Annotated[list[Coord], Field(min_length=7, max_length=7,
                                      description="position x, y, z (m) and quaternion x, y, z, w")]
 Atom = Annotated[str, Field(min_length=1, max_length=64)]
 ActionText = Annotated[str, Field(min_length=1, max_length=64)]
-
-TRAJECTORY_COLUMNS = ["t", "x", "y", "z", "yaw", "opening"]
-
-
-def ts(value: float | None) -> datetime | None:
-    return None if value is None else datetime.fromtimestamp(value, tz=timezone.utc)
 
 
 # ------------------------------------------------------------------------- specs
@@ -247,274 +238,8 @@ class StepObservation(InitialObservation):
                     "step; the same observation re-posted gets the same reply and changes nothing")
 
 
-# ------------------------------------------------------------------------- responses
-class ErrorBody(BaseModel):
-    detail: str
-
-
-class Progress(BaseModel):
-    episodes_done: int
-    episodes: int
-
-
-class NodeRun(BaseModel):
-    node_id: str = Field(description="Ray node id")
-    hostname: str
-    shards: int = Field(description="this task's shard actors on the node (at the start of its run)")
-    particle_actions: int = Field(description="particle-actions the node simulated for this task")
-
-
-class TaskView(BaseModel):
-    id: str
-    status: TaskStatus
-    spec: dict[str, Any]
-    progress: Progress
-    latest: dict[str, Any] | None = Field(None, description="the last episode's record")
-    cancel_requested: bool
-    attempts: int = Field(description="how many times the worker started it (restarts resume)")
-    error: str | None
-    result: dict[str, Any] | None = Field(None, description="summary and runtime when succeeded")
-    nodes: list[NodeRun] | None = Field(
-        None, description="the Ray nodes that ran this task's particles: the result's "
-                          "runtime.nodes when it succeeded; while it runs, as of its last episode")
-    created_at: datetime
-    started_at: datetime | None
-    finished_at: datetime | None
-    links: dict[str, str]
-
-
-class CancelView(TaskView):
-    detail: str
-
-
-class TaskList(BaseModel):
-    items: list[TaskView]
-    total: int
-    limit: int
-    offset: int
-    next_offset: int | None
-
-
-class TaskCreated(BaseModel):
-    id: str
-    status: TaskStatus
-    location: str
-    links: dict[str, str]
-
-
-class Histogram(BaseModel):
-    edges: list[float]
-    weights: list[float]
-
-
-class Joint(BaseModel):
-    x_edges: list[float]
-    y_edges: list[float]
-    weights: list[list[float]]
-
-
-class BeliefSummary(BaseModel):
-    n: int
-    ess: float
-    mean: list[float]
-    std: list[float]
-    low: list[float]
-    high: list[float]
-    histogram: list[Histogram] = Field(description="one weighted histogram per property dimension")
-    joint: Joint | None = Field(None, description="with two dimensions (size, density): their "
-                                                  "joint weighted histogram, weights[i][j] for x bin i "
-                                                  "(dimension 0) and y bin j (dimension 1)")
-    degenerate_updates: int
-
-
-class BeliefView(BaseModel):
-    run_id: str
-    agent: str
-    episodes_done: int
-    property: str = "block_size_m"
-    learns_belief: bool = Field(description="false for agents that keep L at the prior (tmp_rl, toep)")
-    posterior: dict[str, Any] = Field(description="size_mean, size_std (m); per dimension mean/std; "
-                                                  "`properties`: {name: {mean, std, unit}} for every "
-                                                  "property of L (the histogram has one entry per dimension)")
-    belief: BeliefSummary | None
-    true_size: float | None = None
-
-
-class CurvePoint(BaseModel):
-    episode: int
-    utility: float
-    size_mean: float
-    size_std: float
-    actions: int
-    delivered: int
-    loads: list[int]
-    properties: dict[str, dict[str, Any]] | None = Field(
-        None, description="every property of L: {name: {mean, std, unit}} (e.g. size, density)")
-
-
-class CurveView(BaseModel):
-    run_id: str
-    agent: str
-    true_size: float | None
-    points: list[CurvePoint]
-
-
-class StepView(BaseModel):
-    episode: int
-    step: int
-    step_id: str | None = Field(None, description="echo it as the observation's `step_id`")
-    action: str
-    pose: list[float]
-    trajectory: list[list[float]]
-    trajectory_columns: list[str] = Field(
-        TRAJECTORY_COLUMNS, description="the trajectory's columns: t (s), x, y, z (m), yaw (rad), "
-        "opening (m); with mass in Y also grip_force (N per finger) and force_limit (N the wrist "
-        "may exert beyond carrying the gripper; below the scene's default, a guarded move: the "
-        "rest of the trajectory continues from where the gripper got to)")
-    expected: list[str] = Field(description="the planned symbolic state after the action")
-
-
-class SessionView(BaseModel):
-    id: str
-    status: SessionStatus
-    spec: dict[str, Any]
-    episodes: int
-    episodes_done: int
-    in_episode: bool
-    step: int = Field(description="actions observed in the current episode")
-    pending: StepView | None
-    posterior: dict[str, Any] | None
-    latest: dict[str, Any] | None = Field(None, description="the last finished episode's record")
-    last_observation: dict[str, Any] | None = Field(
-        None, description="the last accepted observation: step_id, action, success, configuration, "
-                          "state, measurements")
-    created_at: datetime
-    updated_at: datetime
-    links: dict[str, str]
-
-
-class SessionList(BaseModel):
-    items: list[SessionView]
-    total: int
-    limit: int
-    offset: int
-    next_offset: int | None
-
-
-class SessionCreated(SessionView):
-    next: StepView | None = Field(None, description="the first pending step, if an episode started")
-
-
-class NextView(BaseModel):
-    session_id: str
-    episode: int
-    in_episode: bool
-    pending: StepView | None = Field(None, description="the action to execute; null when the "
-                                                       "episode is over")
-
-
-class ObservationResult(BaseModel):
-    session_id: str
-    report: dict[str, Any] = Field(description="action, success, observed state; ess and "
-                                               "resampled when the belief learns")
-    episode_done: bool
-    episode: dict[str, Any] | None = Field(None, description="the episode's record when it ended")
-    next: StepView | None
-    posterior: dict[str, Any]
-
-
-class EpisodeStarted(BaseModel):
-    session_id: str
-    episode: int
-    next: StepView | None
-
-
-class WorkerHealth(BaseModel):
-    state: Literal["idle", "running", "retrying", "stalled", "dead", "stopped"]
-    ok: bool
-    last_error: str | None = Field(None, description="the last storage or bookkeeping error")
-    consecutive_errors: int
-    last_beat_s: float = Field(description="seconds since the task worker last showed progress")
-
-
-class Health(BaseModel):
-    status: Literal["ok", "degraded"] = Field(description="`degraded` (HTTP 503) when the task "
-                                                          "worker is dead, stalled or retrying")
-    version: str
-    ray: str
-    queued: int
-    running: str | None = Field(description="the running task's id (null without a token "
-                                            "when the server has one)")
-    auth: bool
-    worker: WorkerHealth
-
-
-class DomainView(BaseModel):
-    """A registered domain, as `tmoc domains --json` shows it."""
-
-    name: str
-    description: str
-    source: str = Field(description="builtin, or plugin (<distribution>)")
-    physics: str
-    task: str
-    objects: list[str]
-    n_blocks: int
-    properties: list[dict[str, Any]] = Field(description="L: name, unit, prior, default truth")
-    measurements: dict[str, Any]
-    actions: list[str]
-    contexts: list[list[Any]] = Field(description="T's contexts: [action, integer]")
-    utility: dict[str, float]
-    probe_actions: list[str]
-
-
-class DomainList(BaseModel):
-    items: list[DomainView]
-    total: int
-
-
-# ------------------------------------------------------------------------- dashboard views
-class FramePanel(BaseModel):
-    label: str = Field(description="real, heaviest, matched or did not match")
-    title: str
-    particle: int | None = None
-    weight: float | None = Field(None, description="the particle's weight before the action's update")
-    size_mm: float | None = None
-    matched: bool | None = Field(None, description="its predicted outcome matched the real one "
-                                                   "(as the likelihood judged it)")
-    success: bool | None = Field(None, description="the action had its planned effect in this world")
-
-
-class FrameView(BaseModel):
-    name: str = Field(description="e003-end (episode 3's end) or e003-s007 (its action 7 failed)")
-    kind: Literal["episode_end", "failed_action"]
-    episode: int
-    step: int | None
-    action: str | None
-    panels: list[FramePanel] = Field(description="left to right in the PNG")
-    bytes: int
-    created_at: datetime
-    url: str
-
-
-class FrameList(BaseModel):
-    run_id: str
-    items: list[FrameView] = Field(description="oldest first")
-    total: int
-    max_frames: int = Field(description="frames kept per task (the oldest go first); --max-frames")
-
-
-class TransitionRow(BaseModel):
-    action: str
-    context: int
-    p: float = Field(description="T: the probability that the action succeeds in this context")
-    successes: float = Field(description="weighted successes T is estimated from (real + simulated)")
-    trials: float
-    real_successes: float
-    real_trials: float
-
-
-class TransitionView(BaseModel):
-    run_id: str
-    episodes_done: int
-    rows: list[TransitionRow] = Field(description="one per context, in the domain's order (the "
-                                                  "optimistic prior before the first episode)")
+def run_config(spec: dict) -> RunConfig:
+    """The RunConfig of a stored task or session spec (service-only fields dropped)."""
+    fields = {k: v for k, v in spec.items() if k in RunConfig.model_fields}
+    fields["shards"] = None
+    return stored_run_config(fields)

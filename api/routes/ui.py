@@ -3,8 +3,7 @@ build step), and the browser's sign-in (``POST /ui/login`` -> the ``tmoc_session
 ``POST /ui/logout``; see api.auth).
 
 The shell and its static files are open (they hold no data); everything shown comes from
-the gated /v1 routes. Files are read once when the app is built, so no route touches the
-disk.
+the gated /v1 routes. Files are read once, on import, so no route touches the disk.
 """
 # No `from __future__ import annotations`: FastAPI must see the real classes in signatures.
 import json
@@ -14,7 +13,8 @@ from urllib.parse import parse_qs
 from fastapi import APIRouter, HTTPException, Path, Request
 from fastapi.responses import HTMLResponse, JSONResponse, RedirectResponse, Response
 
-from .auth import COOKIE, SESSION_TTL_S, CookieSessions, session_id, token_ok
+from ..auth import COOKIE, SESSION_TTL_S, session_id, token_ok
+from ..deps import CookieSessionsDep, SettingsDep
 
 TYPES = {".html": "text/html; charset=utf-8", ".js": "text/javascript; charset=utf-8",
          ".css": "text/css; charset=utf-8", ".svg": "image/svg+xml", ".png": "image/png"}
@@ -62,50 +62,55 @@ async def _login_fields(request: Request) -> dict[str, str]:
     return {k: v[0] for k, v in form.items()}
 
 
-def router(token: str | None, sessions: CookieSessions) -> APIRouter:
-    files = _static_files()
-    r = APIRouter(include_in_schema=False)
+_FILES = _static_files()
+router = APIRouter(include_in_schema=False)
 
-    @r.get("/ui")
-    @r.get("/ui/")
-    async def index():
-        return Response(files["index.html"], headers=_headers("index.html"))
 
-    @r.get("/ui/static/{name}")
-    async def static(name: str = Path(max_length=64)):
-        if name not in files:
-            raise HTTPException(404, f"/ui/static/{name}: no such file")
-        return Response(files[name], headers=_headers(name))
+@router.get("/ui")
+@router.get("/ui/")
+async def index():
+    return Response(_FILES["index.html"], headers=_headers("index.html"))
 
-    @r.post("/ui/login")
-    async def login(request: Request):
-        """Sign a browser in: the token (form field or JSON key `token`) for a session cookie."""
-        if not token:
-            return JSONResponse({"detail": "this server has no token (TMOC_API_TOKEN): no sign-in "
-                                           "needed"}, 409)
-        fields = await _login_fields(request)
-        as_json = "json" in request.headers.get("content-type", "").lower()
-        if not fields.get("token"):
-            raise HTTPException(422, "token: missing")
-        if not token_ok(fields["token"], token):
-            if as_json:
-                return JSONResponse({"detail": "token: invalid"}, 401, headers={"WWW-Authenticate": "Bearer"})
-            return HTMLResponse(_failed_page("The token is not this server's."), 401,
-                                headers={"WWW-Authenticate": "Bearer", "Content-Security-Policy": CSP})
-        nxt = fields.get("next") if fields.get("next") in NEXT_PAGES else "/ui"
-        response = (JSONResponse({"signed_in": True, "next": nxt}) if as_json
-                    else RedirectResponse(nxt, 303))
-        secure = (request.url.scheme == "https"
-                  or request.headers.get("x-forwarded-proto", "").lower() == "https")
-        response.set_cookie(COOKIE, sessions.issue(), max_age=int(SESSION_TTL_S), path="/",
-                            httponly=True, samesite="strict", secure=secure)
-        return response
 
-    @r.post("/ui/logout")
-    async def logout(request: Request):
-        sessions.revoke(session_id(request.headers.get("cookie", "")))
-        response = RedirectResponse("/ui", 303)
-        response.delete_cookie(COOKIE, path="/", httponly=True, samesite="strict")
-        return response
+@router.get("/ui/static/{name}")
+async def static(name: str = Path(max_length=64)):
+    if name not in _FILES:
+        raise HTTPException(404, f"/ui/static/{name}: no such file")
+    return Response(_FILES[name], headers=_headers(name))
 
-    return r
+
+@router.post("/ui/login")
+async def login(request: Request, settings: SettingsDep, sessions: CookieSessionsDep):
+    """Sign a browser in: the token (form field or JSON key `token`) for a session cookie."""
+    token = settings.token
+    if not token:
+        return JSONResponse({"detail": "this server has no token (TMOC_API_TOKEN): no sign-in "
+                                       "needed"}, 409)
+    fields = await _login_fields(request)
+    as_json = "json" in request.headers.get("content-type", "").lower()
+    if not fields.get("token"):
+        raise HTTPException(422, "token: missing")
+    if not token_ok(fields["token"], token):
+        if as_json:
+            return JSONResponse({"detail": "token: invalid"}, 401, headers={"WWW-Authenticate": "Bearer"})
+        return HTMLResponse(_failed_page("The token is not this server's."), 401,
+                            headers={"WWW-Authenticate": "Bearer", "Content-Security-Policy": CSP})
+    nxt = fields.get("next") if fields.get("next") in NEXT_PAGES else "/ui"
+    response = (JSONResponse({"signed_in": True, "next": nxt}) if as_json
+                else RedirectResponse(nxt, 303))
+    secure = (request.url.scheme == "https"
+              or request.headers.get("x-forwarded-proto", "").lower() == "https")
+    response.set_cookie(COOKIE, sessions.issue(), max_age=int(SESSION_TTL_S), path="/",
+                        httponly=True, samesite="strict", secure=secure)
+    return response
+
+
+@router.post("/ui/logout")
+async def logout(request: Request, sessions: CookieSessionsDep):
+    sessions.revoke(session_id(request.headers.get("cookie", "")))
+    response = RedirectResponse("/ui", 303)
+    response.delete_cookie(COOKIE, path="/", httponly=True, samesite="strict")
+    return response
+
+
+__all__ = ["router"]

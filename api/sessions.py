@@ -1,0 +1,324 @@
+"""External-robot sessions (:class:`SessionManager`).
+
+Every call that plans or simulates runs in a thread (the routes ``await`` it), serialised
+per session by a lock. A session is persisted as its checkpoint at the last episode
+boundary plus the observations of the current episode; after a restart it is rebuilt by
+replaying them (deterministic: same seeds, same shard results), so it resumes exactly
+where it was.
+"""
+from __future__ import annotations
+
+import json
+import threading
+import weakref
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from coordinator.observations import ObservationError, from_canonical, parse_observation
+from coordinator.reality import Observation
+from coordinator.shard_pools import ShardPools
+
+from .schemas import run_config
+from .store import Store, new_id
+
+
+class SessionConflict(Exception):
+    """The request does not fit the session's state (HTTP 409); nothing was changed."""
+
+    def __init__(self, message: str, field: str | None = None) -> None:
+        super().__init__(message)
+        self.field = field
+
+
+class SessionGone(Exception):
+    """Unknown session id (HTTP 404)."""
+
+
+@dataclass
+class LiveSession:
+    id: str
+    spec: dict
+    session: object                      # coordinator.session.Session
+    step: int = 0                        # observations in the current episode
+    status: str = "active"
+    last_reply: dict | None = None       # {step_id, action, observation, reply} of the last step
+    lock: threading.Lock | None = field(default=None, repr=False)   # keeps the weak entry alive
+
+
+class SessionManager:
+    """External-robot sessions, kept in memory and mirrored to the store."""
+
+    def __init__(self, store: Store, shard_pools: ShardPools, max_active: int) -> None:
+        self.store = store
+        self.shard_pools = shard_pools
+        self.max_active = max_active
+        self._live: dict[str, LiveSession] = {}
+        # Weak: a lock lives while a request holds it or its live session does, so ids that
+        # were only asked about (unknown ones included) leave nothing behind.
+        self._locks: "weakref.WeakValueDictionary[str, threading.Lock]" = weakref.WeakValueDictionary()
+        self._guard = threading.Lock()
+
+    # -- helpers ---------------------------------------------------------------------
+    def _lock_for(self, session_id: str) -> threading.Lock:
+        with self._guard:
+            lock = self._locks.get(session_id)
+            if lock is None:
+                lock = threading.Lock()
+                self._locks[session_id] = lock
+            return lock
+
+    def held_locks(self) -> int:
+        """Per-session locks alive now (for the soak test: must not grow with traffic)."""
+        with self._guard:
+            return len(self._locks)
+
+    def live_count(self) -> int:
+        return len(self._live)
+
+    @staticmethod
+    def step_id(live: LiveSession, episode: int, step: int) -> str:
+        """Unique to the session, the episode and the step: another session's pending step
+        of the same action has another id."""
+        return f"{live.id}:{episode}:{step}"
+
+    def _step_view(self, live: LiveSession, step) -> dict | None:
+        if step is None:
+            return None
+        d = step.to_dict()
+        d.update(episode=live.session.episode, step=live.step,
+                 step_id=self.step_id(live, live.session.episode, live.step))
+        return d
+
+    @staticmethod
+    def observation(live: LiveSession, body: dict) -> tuple[Observation, dict]:
+        """An Observation for this session's scene from a request body (read and checked by
+        the domain); raises SessionConflict naming the field when it does not fit the scene."""
+        s = live.session
+        try:
+            return parse_observation(s.domain, s.task, s.n_blocks, body)
+        except ObservationError as exc:
+            raise SessionConflict(str(exc), exc.field) from None
+
+    def _next(self, live: LiveSession) -> dict | None:
+        """The pending step (planned if needed). Planning errors come from the observed
+        state (the robot's world), so they are a conflict, not a server error."""
+        try:
+            return self._step_view(live, live.session.next_step())
+        except ValueError as exc:
+            raise SessionConflict(f"observation: cannot plan from the observed state: {exc}",
+                                  "observation") from None
+
+    def _with_pool(self, live: LiveSession, fn):
+        """fn() with a shard pool lent to the session (none needed without a belief)."""
+        s = live.session
+        if s.belief is None:
+            return fn()
+        with (self.shard_pools.lease(s.config.domain, s.n_blocks, s.config.options) as pool,
+              s.using_shard_pool(pool)):
+            return fn()
+
+    def _belief(self, live: LiveSession) -> dict | None:
+        b = live.session.belief
+        return b.summary() if b is not None else None
+
+    # -- loading ---------------------------------------------------------------------
+    def _load(self, session_id: str) -> LiveSession:
+        """The live session (rebuilt from the store after a restart). Call under its lock."""
+        live = self._live.get(session_id)
+        if live is not None:
+            return live
+        status = self.store.session_status(session_id)
+        if status is None:
+            raise SessionGone(session_id)
+        if status == "closed":                     # nothing to rebuild for a closed session
+            raise SessionConflict("session is closed", "session")
+        row = self.store.get_session(session_id, checkpoint=True)
+        if row is None:  # pragma: no cover - deleted between the two reads
+            raise SessionGone(session_id)
+        from coordinator.session import Session
+
+        session = Session.from_checkpoint(row["checkpoint"])
+        live = LiveSession(session_id, row["spec"], session, status=row["status"],
+                           last_reply=row.get("last_reply"), lock=self._lock_for(session_id))
+        if row["status"] == "active" and row["episode_start"] is not None:
+            steps = self.store.session_steps(session_id, session.episode)
+
+            def replay() -> None:
+                session.start_episode(from_canonical(row["episode_start"]))
+                session.next_step()
+                for obs in steps:
+                    session.observe(from_canonical(obs))
+                    live.step += 1
+                    session.next_step()
+
+            self._with_pool(live, replay)
+        self._live[session_id] = live
+        return live
+
+    def _get(self, session_id: str) -> LiveSession:
+        live = self._load(session_id)
+        if live.status == "closed":
+            raise SessionConflict("session is closed", "session")
+        return live
+
+    # -- operations (blocking: call them in a thread) --------------------------------
+    def create(self, spec: dict, initial: dict | None) -> tuple[str, dict | None]:
+        from coordinator.session import Session
+
+        config = run_config(spec)
+        session = Session(config)
+        session_id = new_id("s")
+        live = LiveSession(session_id, spec, session, lock=self._lock_for(session_id))
+        checkpoint = session.to_checkpoint()
+        mirror: dict = {"posterior": session.posterior(), "belief": self._belief(live)}
+        nxt = None
+        if initial is not None:
+            obs, canonical = self.observation(live, initial)
+            if live.session.task.is_goal(obs.state):
+                raise SessionConflict("observation: every block is already delivered; nothing to do",
+                                      "observation")
+            session.start_episode(obs)
+            nxt = self._next(live)
+            mirror.update(episode_start=canonical, pending=nxt)
+        with live.lock:
+            self.store.create_session(session_id, spec, checkpoint, mirror, self.max_active)
+            self._live[session_id] = live
+        return session_id, nxt
+
+    def start_episode(self, session_id: str, initial: dict) -> tuple[int, dict | None]:
+        with self._lock_for(session_id):
+            live = self._get(session_id)
+            s = live.session
+            if live.status == "finished" or s.episode >= s.config.episodes:
+                raise SessionConflict(f"session finished: all {s.config.episodes} episodes done",
+                                      "episodes")
+            if self._in_episode(live):
+                raise SessionConflict(f"episode {s.episode} is in progress (step {live.step}); "
+                                      "post its observations first", "episode")
+            obs, canonical = self.observation(live, initial)
+            if live.session.task.is_goal(obs.state):
+                raise SessionConflict("observation: every block is already delivered; nothing to do",
+                                      "observation")
+            s.start_episode(obs)
+            live.step = 0
+            try:
+                nxt = self._next(live)
+                self.store.session_start_episode(session_id, canonical, nxt)
+            except Exception:
+                self._live.pop(session_id, None)         # rebuilt from the store next time
+                raise
+            return s.episode, nxt
+
+    @staticmethod
+    def _in_episode(live: LiveSession) -> bool:
+        s = live.session
+        return s.observation is not None and not s.episode_done()
+
+    @staticmethod
+    def _why_idle(live: LiveSession) -> str:
+        s = live.session
+        if live.status == "finished" or s.episode >= s.config.episodes:
+            return f"session finished: all {s.config.episodes} episodes are done"
+        return ("no episode in progress: POST /v1/sessions/{id}/episodes with the robot's "
+                "initial observation")
+
+    def next(self, session_id: str) -> tuple[int, dict | None]:
+        with self._lock_for(session_id):
+            live = self._get(session_id)
+            s = live.session
+            if not self._in_episode(live):
+                raise SessionConflict(self._why_idle(live), "episode")
+            pending_before = s.pending
+            nxt = self._next(live)
+            if pending_before is None:
+                self.store.session_set_pending(session_id, nxt)
+            return s.episode, nxt
+
+    def _replay(self, live: LiveSession, body: dict) -> dict | None:
+        """The stored reply if `body` re-posts the last accepted observation (same step id,
+        action and observation); None if it is not about that step; a conflict if it
+        reuses that step's id with anything else."""
+        last = live.last_reply
+        if last is None or body["step_id"] != last["step_id"]:
+            return None
+        _, canonical = self.observation(live, body)
+        same = (body["action"] == last["action"]
+                and json.loads(json.dumps(canonical)) == last["observation"])
+        if not same:
+            raise SessionConflict(f"step_id: step {last['step_id']!r} was already observed with "
+                                  "another observation; it cannot be observed twice", "step_id")
+        return last["reply"]
+
+    def observe(self, session_id: str, body: dict) -> dict:
+        with self._lock_for(session_id):
+            live = self._get(session_id)
+            s = live.session
+            replay = self._replay(live, body)
+            if replay is not None:
+                return replay
+            if not self._in_episode(live):
+                raise SessionConflict(self._why_idle(live), "episode")
+            if s.pending is None:
+                raise SessionConflict("no pending step: GET /v1/sessions/{id}/next first", "action")
+            pending_id = self.step_id(live, s.episode, live.step)
+            if body["step_id"] != pending_id:
+                raise SessionConflict(f"step_id: observation answers step {body['step_id']!r}, the "
+                                      f"pending step is {pending_id!r}", "step_id")
+            if body["action"] != s.pending.action:
+                raise SessionConflict(f"action: observation answers {body['action']!r}, the pending "
+                                      f"action is {s.pending.action!r}", "action")
+            obs, canonical = self.observation(live, body)
+            episode, step = s.episode, live.step
+            try:
+                report = self._with_pool(live, lambda: s.observe(obs))
+                live.step += 1
+                record = report.pop("episode", None)
+                nxt = None if record is not None else self._next(live)
+                report = _jsonable(report)
+                finished = record is not None
+                status = "active"
+                if finished and s.episode >= s.config.episodes:
+                    status = "finished"
+                    live.status = status
+                reply = {"session_id": session_id, "report": report, "episode_done": finished,
+                         "episode": _jsonable(record) if finished else None, "next": nxt,
+                         "posterior": s.posterior()}
+                last = {"step_id": pending_id, "action": body["action"],
+                        "observation": json.loads(json.dumps(canonical)),
+                        "reply": json.loads(json.dumps(reply))}
+                self.store.session_record_step(
+                    session_id, episode, step, canonical, report, pending=nxt,
+                    posterior=s.posterior(), belief=self._belief(live),
+                    finished=_jsonable(record) if finished else None,
+                    checkpoint=s.to_checkpoint() if finished else None, status=status,
+                    last_reply=last)
+                live.last_reply = last
+            except Exception:
+                self._live.pop(session_id, None)         # rebuilt from the store: unchanged
+                raise
+            return reply
+
+    def close(self, session_id: str) -> str | None:
+        with self._lock_for(session_id):
+            status = self.store.close_session(session_id)
+            live = self._live.pop(session_id, None)
+            if live is not None:
+                live.status = "closed"
+            return status
+
+
+def _jsonable(value):
+    """Plain JSON types (numpy scalars/arrays and tuples converted)."""
+    if isinstance(value, dict):
+        return {str(k): _jsonable(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_jsonable(v) for v in value]
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    if isinstance(value, np.generic):
+        return value.item()
+    return value
+
+
+__all__ = ["LiveSession", "SessionConflict", "SessionGone", "SessionManager"]
