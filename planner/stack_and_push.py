@@ -6,7 +6,6 @@ multi-shot driver). Its symbolic model (atoms, actions, checked states, the towe
 """
 from __future__ import annotations
 
-import math
 import numbers
 import time
 from pathlib import Path
@@ -58,18 +57,8 @@ def _action_value(name: str, args: tuple[str, ...], state: frozenset[str],
 
 def _evaluate(state: frozenset[str], actions: Sequence[str], model: tm._Model,
               classes: Mapping[str, str]) -> tuple[float, tuple[int, ...], frozenset[str]]:
-    terms, loads = [], []
-    for step, action in enumerate(actions, start=1):
-        try:
-            name, args = check_action(action)
-            value, load = _action_value(name, args, state, model, classes)
-            state = apply(state, action)
-        except ValueError as exc:
-            raise PlanningError(f"step {step}: {exc}") from None
-        terms.append(value)
-        if load is not None:
-            loads.append(load)
-    return math.fsum(terms), tuple(loads), state
+    return tm.simulate_plan(state, actions, check_action, apply,
+                            lambda name, args, now: _action_value(name, args, now, model, classes))
 
 
 def _checked_state(state: Iterable[str]) -> frozenset[str]:

@@ -19,7 +19,7 @@ from __future__ import annotations
 import math
 import numbers
 from dataclasses import dataclass
-from typing import Iterable, Mapping, Sequence
+from typing import Callable, Iterable, Mapping, Sequence
 
 import numpy as np
 
@@ -195,15 +195,28 @@ def _action_value(name: str, args: tuple[str, ...], state: frozenset[str], model
 def _evaluate(state: frozenset[str], actions: Sequence[str], model: _Model,
               classes: Mapping[str, str]) -> tuple[float, tuple[int, ...], frozenset[str]]:
     """Simulate the actions: (expected utility, loads of the pushes to goal, final state)."""
+    return simulate_plan(state, actions, symbolic.parse_action, symbolic.apply,
+                         lambda name, args, now: _action_value(name, args, now, model, classes))
+
+
+def simulate_plan(state: frozenset[str], actions: Sequence[str],
+                  parse: Callable[[str], tuple[str, tuple[str, ...]]],
+                  apply: Callable[[frozenset[str], str], frozenset[str]],
+                  value: Callable[[str, tuple[str, ...], frozenset[str]], tuple[float, int | None]],
+                  ) -> tuple[float, tuple[int, ...], frozenset[str]]:
+    """A domain's plan simulated on its symbolic model: (the sum of each action's expected
+    value, the loads the values report, the final state). `parse` checks an action,
+    `apply` is its effect, `value(name, args, state)` its (expected value, load or None);
+    an invalid step raises PlanningError naming it."""
     terms, loads = [], []
     for step, action in enumerate(actions, start=1):
         try:
-            name, args = symbolic.parse_action(action)
-            value, load = _action_value(name, args, state, model, classes)
-            state = symbolic.apply(state, action)
+            name, args = parse(action)
+            term, load = value(name, args, state)
+            state = apply(state, action)
         except ValueError as exc:
             raise PlanningError(f"step {step}: {exc}") from None
-        terms.append(value)
+        terms.append(term)
         if load is not None:
             loads.append(load)
     return math.fsum(terms), tuple(loads), state

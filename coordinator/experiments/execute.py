@@ -31,13 +31,11 @@ def _run_remote():
 
     @ray.remote(num_cpus=1, max_retries=2)
     def run_task(config: dict, key: str, resume: dict | None, progress, checkpoint_s: float | None):
-        from ..agents import agent
-        from ..fanout import ShardPool
+        from ..agents import agent_spec
         from ..runner import run
+        from ..shard_pools import ShardPools
 
         cfg = RunConfig(**config)
-        pool = (ShardPool(cfg.domain, {"n_blocks": cfg.n_blocks, **cfg.options}, n_shards=0)
-                if agent(cfg.agent).learn_belief else None)
         last = [time.monotonic()]
 
         def on_episode(record, session, checkpoint):
@@ -48,11 +46,12 @@ def _run_remote():
             if progress is not None:
                 progress.episode.remote(key, checkpoint if send else None)
 
-        try:
+        # The run's particles stay in this task's process (n_shards=0): the experiment
+        # spreads runs, not particles, over the cluster. Ray is already up in a task.
+        with ShardPools(n_shards=0, max_pools=1, own_ray_thread=False) as shard_pools:
+            pool = (shard_pools.acquire(cfg.domain, cfg.n_blocks, cfg.options)
+                    if agent_spec(cfg.agent).learn_belief else None)
             return run(cfg, pool=pool, on_episode=on_episode, resume=resume)
-        finally:
-            if pool is not None:
-                pool.close()
 
     return run_task
 
