@@ -94,6 +94,7 @@ def main() -> int:
     from ray.cluster_utils import Cluster
 
     import coordinator.runner as runner
+    import coordinator.shard_pools as shard_pools
     from coordinator.fanout import ShardPool
     from coordinator.run_config import RunConfig
 
@@ -141,13 +142,14 @@ def main() -> int:
             return real_wait(*args, **kwargs)
 
         ray.wait = wait
-        runner.ShardPool = NodeLossPool
+        # The runner's own pool is built by coordinator.shard_pools.ShardPools.
+        shard_pools.ShardPool = NodeLossPool
         t = time.perf_counter()
         try:
             failure = runner.run(cfg)
         finally:
             ray.wait = real_wait
-            runner.ShardPool = ShardPool
+            shard_pools.ShardPool = ShardPool
         timings["failure_s"] = time.perf_counter() - t
         timings["remove_s"] = removed.get("remove_s")
         alive = [n["NodeID"] for n in ray.nodes() if n["Alive"]]
