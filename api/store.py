@@ -20,8 +20,7 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Any, Iterator
 
-# lock_database: `tmoc serve` imports it from here.
-from .database import create_schema, lock_database  # noqa: F401
+from .database import create_schema
 
 TERMINAL = ("succeeded", "failed", "cancelled")
 

@@ -146,7 +146,6 @@ def _replay(job) -> float:
         full = tr.sample(traj, t0 + dt * np.arange(1, int(np.ceil((traj[-1, 0] - t0 + world.settle_s) / dt)) + 1))
         if world._leaves_out(action):
             world._leave_out(full)          # the very bodies the shard left out (no guard)
-            world._absent.clear()
         targets = full[:n, :5]
         for x, y, z, yaw, opening in targets:
             pb.changeConstraint(h.base_constraint, jointChildPivot=[x, y, z + h.palm_offset],

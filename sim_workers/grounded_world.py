@@ -11,8 +11,7 @@ shape, so memory stays flat over any number of resets.
 """
 from __future__ import annotations
 
-import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import pybullet as pb
@@ -228,8 +227,8 @@ class GroundedWorld:
         settle = self.settle_s if max_settle_s is None else max_settle_s
         times = start_time + dt * np.arange(1, int(np.ceil((t_end - start_time + settle) / dt)) + 1)
         targets = tr.sample(traj, times)
-        guard = self._leave_out(targets) if reduce else None
-        outcome, steps = self._run(action, times, targets, t_end, guard)
+        watch = self._leave_out(targets) if reduce else None
+        outcome, steps = self._run(action, times, targets, t_end, watch)
         if outcome is None:
             # Something came near a left-out body: the same action in the full world,
             # rebuilt exactly as reset() built it (bit-identical to a world without leave_out).
@@ -239,7 +238,7 @@ class GroundedWorld:
             if start_time > 0.0:
                 self.skip_to(traj, start_time)
             outcome, more = self._run(action, times, targets, t_end, None)
-            outcome = Outcome(outcome.configuration, outcome.state, outcome.measurements, steps + more)
+            outcome = replace(outcome, steps=steps + more)
         return outcome
 
     def _leaves_out(self, action: str) -> bool:
@@ -248,7 +247,7 @@ class GroundedWorld:
         guard's cost)."""
         return action.partition("(")[0] in getattr(self.domain, "leave_out_actions", ())
 
-    def _leave_out(self, targets: np.ndarray) -> "_Guard | None":
+    def _leave_out(self, targets: np.ndarray) -> reach.Guard | None:
         """Remove the objects the action cannot reach (``sim_workers.reach``); None when
         every object is within reach."""
         h, c = self.handles, self.client
@@ -265,11 +264,11 @@ class GroundedWorld:
             pb.removeBody(h.objects[i], physicsClientId=c)
         bodies = [h.objects[i] for i in kept]
         start = np.array([pb.getBasePositionAndOrientation(b, physicsClientId=c)[0] for b in bodies]).reshape(-1, 3)
-        return _Guard(self, bodies, start, reach.radii(start, boxes[kept]), boxes[~keep])
+        return reach.Guard(c, h.gripper, bodies, reach.radii(start, boxes[kept]), boxes[~keep])
 
     def _run(self, action: str, times: np.ndarray, targets: np.ndarray, t_end: float,
-             guard: "_Guard | None") -> tuple[Outcome | None, int]:
-        """Step through `targets`; (None, steps) as soon as the guard trips."""
+             watch: reach.Guard | None) -> tuple[Outcome | None, int]:
+        """Step through `targets`; (None, steps) as soon as `watch` trips."""
         h = self.handles
         steps = 0
         # A domain that reads sensors during the action says so; the others pay nothing.
@@ -288,7 +287,7 @@ class GroundedWorld:
             if logging:
                 force.append(pb.getConstraintState(h.base_constraint, physicsClientId=self.client)[:3])
                 opening.append(self._opening())
-            if guard is not None and k % reach.GUARD_EVERY == 0 and guard.tripped(self):
+            if watch is not None and k % reach.GUARD_EVERY == 0 and watch.tripped():
                 return None, steps
             if t > t_end and k % REST_CHECK_EVERY == 0 and self.at_rest():
                 break
@@ -323,40 +322,6 @@ class GroundedWorld:
         h = self.handles
         q = [s[0] for s in pb.getJointStates(h.gripper, list(h.fingers), physicsClientId=self.client)]
         return 2.0 * (float(np.mean(q)) - h.finger_inner)
-
-
-class _Guard:
-    """Watches a world with left-out bodies (``sim_workers.reach``): trips when a kept
-    object's ball, or the gripper's box, came within ``reach.GUARD_MARGIN`` of a left-out
-    box and nearer than it started (by ``reach.APPROACH``). One pybullet call per kept
-    object and one per gripper link per check, and plain Python: with a handful of boxes
-    numpy's per-call cost is most of the time."""
-
-    def __init__(self, world: "GroundedWorld", bodies: list[int], start: np.ndarray,
-                 radii: np.ndarray, left_out: np.ndarray) -> None:
-        c = world.client
-        self.client, self.bodies = c, bodies
-        self.radii = [float(r) for r in radii]
-        self.left_out = [tuple(b) for b in left_out.tolist()]
-        gripper = world.handles.gripper
-        self.gripper = [(gripper, link) for link in range(-1, pb.getNumJoints(gripper, physicsClientId=c))]
-        self.start = [d - reach.APPROACH for d in self._clearance()]
-
-    def _clearance(self) -> list[float]:
-        c, out = self.client, []
-        aabbs = [pb.getAABB(b, link, physicsClientId=c) for b, link in self.gripper]
-        lo = [min(a[0][k] for a in aabbs) for k in range(3)]
-        hi = [max(a[1][k] for a in aabbs) for k in range(3)]
-        out.append(min(max(b[0] - hi[0], lo[0] - b[3], b[1] - hi[1], lo[1] - b[4], b[2] - hi[2], lo[2] - b[5])
-                       for b in self.left_out))
-        for body, r in zip(self.bodies, self.radii):
-            x, y, z = pb.getBasePositionAndOrientation(body, physicsClientId=c)[0]
-            out.append(min(math.sqrt(max(b[0] - x, x - b[3], 0.0) ** 2 + max(b[1] - y, y - b[4], 0.0) ** 2
-                                     + max(b[2] - z, z - b[5], 0.0) ** 2) for b in self.left_out) - r)
-        return out
-
-    def tripped(self, world: "GroundedWorld") -> bool:
-        return any(d <= reach.GUARD_MARGIN and d < s for d, s in zip(self._clearance(), self.start))
 
 
 def act(world: GroundedWorld, domain, config: Configuration, believed: dict, action: str):

@@ -105,7 +105,8 @@ def _Server(config, app):
 def main(args) -> int:
     token = check_args(args)
     from api.app import Settings, create_app
-    from api.store import Store, lock_database
+    from api.database import lock_database
+    from api.store import Store
 
     if args.db == ":memory:" or args.db.startswith("file:"):
         raise UsageError(f"--db {args.db}: an in-memory or URI database is not shared by the "
