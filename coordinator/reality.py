@@ -7,7 +7,7 @@ reality gap (friction and placement jitter); an external robot implements the sa
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Protocol
+from typing import Callable, Protocol
 
 import numpy as np
 
@@ -30,16 +30,52 @@ class Reality(Protocol):
     def execute(self, trajectory: np.ndarray, action: str) -> Observation: ...
 
 
+@dataclass(frozen=True)
+class ContextFailure:
+    """A reality gap the particle worlds cannot know (issue 24): every action `action` in a
+    T context >= `from_context` fails in this reality only. After the action the object it
+    acted on (its first argument naming an object) is back where the episode started it,
+    as if it had slipped and been put back; the measurements are the action's own.
+
+    >>> ContextFailure.parse("stack:3")
+    ContextFailure(action='stack', from_context=3)
+    """
+
+    action: str
+    from_context: int = 0
+
+    @classmethod
+    def parse(cls, text: str) -> "ContextFailure":
+        """``"ACTION:K"`` (or ``"ACTION"``: every context) -> ContextFailure; ValueError if malformed."""
+        name, _, k = str(text).partition(":")
+        if not name.isidentifier() or (k and not k.isdigit()):
+            raise ValueError(f"expected ACTION:K, e.g. stack:3 (got {text!r})")
+        return cls(name, int(k) if k else 0)
+
+    def applies(self, context: tuple[str, int] | None) -> bool:
+        return context is not None and context[0] == self.action and int(context[1]) >= self.from_context
+
+
 class SimulatedReality:
-    """A grounded world holding the hidden truth, perturbed per episode by the reality gap."""
+    """A grounded world holding the hidden truth, perturbed per episode by the reality gap.
+
+    ``failure`` with ``context_fn`` (the task's ``context_of``) adds a ``ContextFailure``.
+    """
 
     def __init__(self, domain_name: str, domain_options: dict, true_properties: dict,
-                 gap: RealityGap = RealityGap()) -> None:
+                 gap: RealityGap = RealityGap(), failure: ContextFailure | None = None,
+                 context_fn: Callable | None = None) -> None:
+        if failure is not None and context_fn is None:
+            raise ValueError("failure: needs the task's context_fn")
         self.domain_name = domain_name
         self.options = dict(domain_options)
         self.truth = true_properties
         self.gap = gap
+        self.failure, self.context_fn = failure, context_fn
         self.world: GroundedWorld | None = None
+        self._domain = None
+        self._start: Configuration | None = None
+        self._state: frozenset[str] = frozenset()
 
     def start_episode(self, rng: np.random.Generator) -> Observation:
         domain = jittered_domain(rng, self.gap.friction, domain=self.domain_name, **self.options)
@@ -51,11 +87,30 @@ class SimulatedReality:
         objects = jitter_planar(rng, config.objects, range(1, len(config.objects)),
                                 self.gap.placement_m, self.gap.yaw_rad)
         placed = self.world.reset(Configuration(config.robot, objects), self.truth)
-        return Observation(placed, domain.symbolic_state(placed), domain.measurements(placed))
+        self._domain, self._start = domain, placed
+        self._state = domain.symbolic_state(placed)
+        return Observation(placed, self._state, domain.measurements(placed))
 
     def execute(self, trajectory: np.ndarray, action: str) -> Observation:
         out = self.world.execute(trajectory, action)
-        return Observation(out.configuration, out.state, out.measurements)
+        config, state = out.configuration, out.state
+        if self.failure is not None and self.failure.applies(self.context_fn(self._state, action)):
+            config = self._put_back(config, action)
+            state = self._domain.symbolic_state(config)
+        self._state = state
+        return Observation(config, state, out.measurements)
+
+    def _put_back(self, config: Configuration, action: str) -> Configuration:
+        """`config` with the action's object back at its episode-start pose (world rebuilt)."""
+        names = list(self._domain.object_names)
+        args = [a.strip() for a in action.partition("(")[2].rstrip(")").split(",")]
+        row = next((names.index(a) for a in args if a in names), None)
+        if row is None:
+            return config
+        objects = config.objects.copy()
+        objects[row] = self._start.objects[row]
+        robot = config.robot.copy()
+        return self.world.reset(Configuration(robot, objects), self.truth, place=False)
 
     def close(self) -> None:
         if self.world is not None:

@@ -86,6 +86,15 @@ class RunConfig(BaseModel):
     jitter: float = Field(0.1, ge=0, le=1)
     jitter_floor: float = Field(0.02, ge=0, le=0.5)
     sim_weight: float = Field(1.0, ge=0, le=100)
+    # How simulated outcomes enter T where reality disagrees (issue 24): "power_prior"
+    # discounts each context's simulated counts by how well they predict its real outcomes
+    # (coordinator.transition_model.sim_discount); "none" counts them at sim_weight always
+    # (every run before the field; stored settings without it keep it).
+    sim_discount: Literal["power_prior", "none"] = "power_prior"
+    # A reality gap the particle worlds do not know, for simulated realities: "ACTION:K"
+    # makes every ACTION in a T context >= K fail in reality only (coordinator.reality.
+    # ContextFailure), e.g. "stack:3" (stacks onto 3 or more blocks). None: no such gap.
+    reality_fail: str | None = Field(None, max_length=64)
     costs: Costs = Costs()
     shards: int | None = Field(None, ge=0, le=4096)
     # The hidden truth by the names of L (`tmoc domains`), e.g. {"size": 0.04, "density":
@@ -143,6 +152,28 @@ class RunConfig(BaseModel):
         return {**self.truth, "size": float(self.true_size)}
 
     @model_validator(mode="after")
+    def _reality_fail_is_a_context(self) -> "RunConfig":
+        if self.reality_fail is None:
+            return self
+        from coordinator.domains import task_half
+        from coordinator.reality import ContextFailure
+
+        try:
+            failure = ContextFailure.parse(self.reality_fail)
+        except ValueError as exc:
+            raise ValueError(f"reality_fail: {exc}") from None
+        contexts = task_half(self.domain).contexts(self.n_blocks)
+        ks = [k for a, k in contexts if a == failure.action]
+        if not ks:
+            names = sorted({a for a, _ in contexts})
+            raise ValueError(f"reality_fail: {failure.action!r} is not an action with T contexts "
+                             f"(actions: {', '.join(names)})")
+        if failure.from_context > max(ks):
+            raise ValueError(f"reality_fail: context {failure.from_context} is above {failure.action}'s "
+                             f"largest, {max(ks)}")
+        return self
+
+    @model_validator(mode="after")
     def _costs_are_the_domains(self) -> "RunConfig":
         from coordinator.domains import task_half
 
@@ -190,7 +221,9 @@ def seed_stream(seed: int, stream: int) -> np.random.Generator:
 def stored_run_config(fields: dict) -> RunConfig:
     """The RunConfig of a stored settings dump (a checkpoint's or a task's spec). Dumps are
     whole (every field), so one without `particle_budget` predates the adaptive budget:
-    it keeps the fixed budget it ran with, whatever the default is now."""
+    it keeps the fixed budget it ran with, whatever the default is now; likewise one
+    without `sim_discount` keeps T's undiscounted simulated counts."""
     fields = dict(fields)
     fields.setdefault("particle_budget", "fixed")
+    fields.setdefault("sim_discount", "none")
     return RunConfig(**fields)

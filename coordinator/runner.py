@@ -9,7 +9,7 @@ from typing import Callable
 import numpy as np
 
 from .fanout import ShardPool
-from .reality import SimulatedReality
+from .reality import ContextFailure, SimulatedReality
 from .run_config import REALITY_STREAM, RunConfig, seed_stream
 from .session import Session
 from .shard_pools import ShardPools
@@ -22,7 +22,9 @@ def reality_for(config: RunConfig, session: Session) -> SimulatedReality:
     else:
         truth = session.domain.true_properties(config.sizes_variation)
         truth["block_sizes"] = truth["block_sizes"] * (config.true_size / session.domain.spec.true_size)
-    return SimulatedReality(config.domain, domain_options(config), truth)
+    failure = None if config.reality_fail is None else ContextFailure.parse(config.reality_fail)
+    return SimulatedReality(config.domain, domain_options(config), truth, failure=failure,
+                            context_fn=session.task.context_of)
 
 
 def domain_options(config: RunConfig) -> dict:

@@ -100,11 +100,13 @@ class Session:
         return TransitionModel.from_experience(
             self.experience, self.n_blocks,
             sim_weight=self.config.sim_weight if self.agent.sim_experience else 0.0,
-            contexts=self.task.contexts(self.n_blocks), context_fn=self.task.context_of)
+            contexts=self.task.contexts(self.n_blocks), context_fn=self.task.context_of,
+            discount=self.config.sim_discount == "power_prior")
 
     def transition_table(self) -> list[dict]:
         """T per context, for people: the success probability and the weighted counts it
-        comes from (all, and the real world's share), in the domain's context order."""
+        comes from (all, and the real world's share), in the domain's context order;
+        ``sim_discount``: the share of the simulated counts T uses (None: no simulated ones)."""
         T = self.transition
         real = self.experience.counts()["real"]
         rows = []
@@ -113,7 +115,8 @@ class Session:
             rs, rn = real.get((name, k), (0.0, 0.0))
             rows.append({"action": name, "context": int(k), "p": T.probability(name, k),
                          "successes": float(T.successes[name][i]), "trials": float(T.trials[name][i]),
-                         "real_successes": float(rs), "real_trials": float(rn)})
+                         "real_successes": float(rs), "real_trials": float(rn),
+                         "sim_discount": T.discounts.get((name, k))})
         return rows
 
     def truth_row(self) -> np.ndarray:

@@ -23,6 +23,17 @@ experience says otherwise) and its bias ``a (1 - rate) / (n + a)`` vanishes as w
 trials grow, so it converges to the empirical success rate. A smooth estimator was chosen
 over the hard R-max rule ("1 until m visits, then s/n") because fractional simulated
 evidence has no natural visit count and a jump at m would make plans flip abruptly.
+
+Simulated evidence where reality disagrees (issue 24). Each real action adds one real
+trial and one unit of simulated trials, so where the particle worlds predict success and
+the robot fails every time, T would stay near one half for ever. Simulated counts enter
+each context discounted by a factor delta in [0, 1], a *power prior* (Ibrahim and Chen
+2000): the simulated outcomes are a prior for the real ones, raised to the power delta,
+and delta is weighed by how well that prior predicts the real outcomes seen so far (the
+posterior mean of delta under a uniform prior, from the beta-binomial marginal likelihood;
+``sim_discount``). Where they agree (or no real trial exists yet) delta stays near 1 and
+simulated experience keeps making TMOC learn fast; where reality contradicts the worlds
+delta falls towards 0 within a few real trials and T follows the real rate.
 """
 from __future__ import annotations
 
@@ -71,6 +82,9 @@ class TransitionModel:
     trials: dict[str, np.ndarray] = field(default_factory=dict)
     contexts: Sequence[tuple[str, int]] | None = None      # default: the container's
     context_fn: Callable | None = field(default=None, repr=False)   # default: context_of
+    # (action, context) -> the power prior's delta applied to its simulated counts (only
+    # contexts with simulated evidence, and only when built with discount=True)
+    discounts: dict = field(default_factory=dict, repr=False)
 
     def __post_init__(self) -> None:
         if int(self.n_blocks) < 1:
@@ -204,6 +218,7 @@ class TransitionModel:
         prior_successes: float = 1.0,
         contexts: Sequence[tuple[str, int]] | None = None,
         context_fn: Callable | None = None,
+        discount: bool = False,
     ) -> "TransitionModel":
         """T rebuilt from a pool: real evidence at weight 1, simulated at weight * sim_weight.
 
@@ -221,6 +236,20 @@ class TransitionModel:
         0.5833
         >>> TransitionModel.from_experience(pool, 2, sim_weight=0).probability("push", 2)
         0.5
+
+        With ``discount`` each context's simulated counts are scaled by ``sim_discount``
+        (module docstring): three real failures where the worlds predicted three successes
+        leave little of the simulated evidence.
+
+        >>> pool = ExperiencePool()
+        >>> for _ in range(3):
+        ...     pool.add_real(full, "push(r,c,init,goal)", one, full)
+        ...     pool.add_simulated(full, "push(r,c,init,goal)", [full], full, np.array([1.0]))
+        >>> round(TransitionModel.from_experience(pool, 2).probability("push", 2), 3)
+        0.571
+        >>> t = TransitionModel.from_experience(pool, 2, discount=True)
+        >>> round(t.probability("push", 2), 3), round(t.discounts[("push", 2)], 3)
+        (0.367, 0.246)
         """
         if not (sim_weight >= 0 and math.isfinite(sim_weight)):
             raise ValueError(f"sim_weight: must be finite and >= 0, got {sim_weight}")
@@ -231,5 +260,43 @@ class TransitionModel:
             model.add_counts(name, ctx, s, n)
         if sim_weight > 0:
             for (name, ctx), (s, n) in counts["sim"].items():
-                model.add_counts(name, ctx, s * sim_weight, n * sim_weight)
+                delta = 1.0
+                if discount:
+                    delta = sim_discount(*counts["real"].get((name, ctx), (0.0, 0.0)),
+                                         s * sim_weight, n * sim_weight)
+                    model.discounts[(name, ctx)] = delta
+                model.add_counts(name, ctx, s * sim_weight * delta, n * sim_weight * delta)
         return model
+
+
+# delta's grid: 0, 0.05, ..., 1 (a finer one moves T by under 0.005 in the doctest's cases).
+_DELTAS = np.linspace(0.0, 1.0, 21)
+_REFERENCE = 0.5      # Jeffreys' Beta(1/2, 1/2): the proper prior the marginal likelihood needs
+
+
+def _log_beta(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    lg = np.vectorize(math.lgamma, otypes=[float])
+    return lg(a) + lg(b) - lg(a + b)
+
+
+def sim_discount(real_successes: float, real_trials: float, sim_successes: float,
+                 sim_trials: float) -> float:
+    """The posterior mean of the power prior's delta for one context (module docstring).
+
+    The simulated counts, raised to delta, make the prior Beta(1/2 + delta s, 1/2 + delta f)
+    of the real success rate; the real outcomes' marginal likelihood under it weighs each
+    delta of a uniform grid. No real trial: 1 (nothing contradicts the worlds yet).
+
+    >>> round(sim_discount(0, 0, 5, 5), 3), round(sim_discount(5, 5, 5, 5), 3)
+    (1.0, 0.569)
+    >>> round(sim_discount(0, 5, 5, 5), 3), round(sim_discount(4, 5, 4.2, 5), 3)
+    (0.118, 0.553)
+    """
+    rf = real_trials - real_successes
+    if real_trials <= 0:
+        return 1.0
+    a = _REFERENCE + _DELTAS * sim_successes
+    b = _REFERENCE + _DELTAS * (sim_trials - sim_successes)
+    log_ml = _log_beta(a + real_successes, b + rf) - _log_beta(a, b)
+    w = np.exp(log_ml - log_ml.max())
+    return float(np.dot(w, _DELTAS) / w.sum())

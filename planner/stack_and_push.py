@@ -46,11 +46,11 @@ def _action_value(name: str, args: tuple[str, ...], state: frozenset[str],
     c = model.costs
     if name == "pickup":
         p = model.p_pickup[classes[args[1]]]
-        return -c["pickup"] - (1.0 - p) * c["fail"], None
+        return -tm.attempt_cost(c["pickup"], c["fail"], p), None
     h = len(tower(state))
     if name == "stack":
         p = float(model.p_stack[h])
-        return -c["stack"] - (1.0 - p) * c["fail"], None
+        return -tm.attempt_cost(c["stack"], c["fail"], p), None
     p = float(model.p_push[h - 1]) if h else 1.0
     return -c["push"] - (1.0 - p) * c["fail"] + p * c["deliver"] * h, h
 

@@ -8,11 +8,16 @@ stack-and-push task half reuses the validation (``planner.stack_and_push``).
 
 Expected utility of a plan::
 
-    sum over actions a of  -cost(a) - (1 - p(a)) * fail + p(a) * bonus(a)
+    sum over pickups and stacks a of  -attempt_cost(cost(a), fail, p(a))
+    + sum over pushes a of            -cost(a) - (1 - p(a)) * fail + p(a) * bonus(a)
 
 with p(a) from T in the action's context (pickup: the block's class; stack: the number of
 blocks already in the container; push to goal: its load k, bonus deliver * k; the return
-push and an empty push to goal: p = 1, bonus 0).
+push and an empty push to goal: p = 1, bonus 0). A pickup or stack that fails has not
+happened: the plan goes on only once it is done, so it costs its expected number of
+attempts (``attempt_cost``, issue 24: charging a failure once, as if the action had had
+its effect anyway, kept a plan through a context the robot failed 47 times in a row). A
+failed push loses its delivery, which its bonus term prices.
 """
 from __future__ import annotations
 
@@ -62,6 +67,24 @@ class _Model:
     p_stack: np.ndarray           # [p_0 .. p_{N-1}], index = blocks already in the container
     p_push: np.ndarray            # [p_1 .. p_N], index k-1 = load k
     costs: dict[str, float]
+
+
+# The least success probability an attempt is priced at: a context T has seen fail every
+# time still costs a finite amount (50 attempts: ~2950 for a stack at the default costs,
+# more than any plan of 16 blocks can gain), so the planner's weights stay finite.
+P_ATTEMPT_FLOOR = 0.02
+
+
+def attempt_cost(cost, fail, p):
+    """Expected cost of repeating an action until it succeeds: 1/p attempts at `cost`
+    each, 1/p - 1 of them failing at `fail` (p floored at P_ATTEMPT_FLOOR; arrays work).
+
+    >>> attempt_cost(10.0, 50.0, 1.0), attempt_cost(10.0, 50.0, 0.5)
+    (10.0, 70.0)
+    """
+    q = np.maximum(np.asarray(p, dtype=np.float64), P_ATTEMPT_FLOOR)
+    out = (cost + (1.0 - q) * fail) / q
+    return float(out) if out.ndim == 0 else out
 
 
 def optimistic_transition(n_blocks: int) -> dict:
@@ -181,11 +204,11 @@ def _action_value(name: str, args: tuple[str, ...], state: frozenset[str], model
     costs = model.costs
     if name == "pickup":
         p = model.p_pickup[classes[args[1]]]
-        return -costs["pickup"] - (1.0 - p) * costs["fail"], None
+        return -attempt_cost(costs["pickup"], costs["fail"], p), None
     loaded = sum(1 for atom in state if atom.startswith("at_container("))
     if name == "stack":
         p = float(model.p_stack[loaded])
-        return -costs["stack"] - (1.0 - p) * costs["fail"], None
+        return -attempt_cost(costs["stack"], costs["fail"], p), None
     if args[3] == "init" or loaded == 0:           # return push / empty push: p = 1, no bonus
         return -costs["push"], (0 if args[3] == "goal" else None)
     p = float(model.p_push[loaded - 1])

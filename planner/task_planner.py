@@ -26,8 +26,8 @@ from planner import symbolic
 # imported here for this module and for existing callers (planner.stack_and_push, tests).
 from planner.task_model import (DEFAULT_CLASS, DEFAULT_COSTS, TRANSITION_FIELDS,  # noqa: F401
                                 Plan, PlanningError, _block_classes, _checked_state, _evaluate,
-                                _is_number, _Model, _validate_transition, expected_utility,
-                                optimistic_transition)
+                                _is_number, _Model, _validate_transition, attempt_cost,
+                                expected_utility, optimistic_transition)
 
 ENCODING = Path(__file__).with_name("asp") / "container.lp"
 DEFAULT_TIME_LIMIT_S = 30.0
@@ -144,11 +144,11 @@ def _scaled_weights(problem: _Problem, model: _Model, classes: Mapping[str, str]
     """The facts at one scale, or None if a weight would not fit clingo's 32-bit numbers."""
     c = model.costs
     loads = np.arange(1, len(model.p_push) + 1)
-    stack = np.rint(scale * (c["stack"] + (1.0 - model.p_stack) * c["fail"])).astype(np.int64)
+    stack = np.rint(scale * attempt_cost(c["stack"], c["fail"], model.p_stack)).astype(np.int64)
     push = np.rint(scale * (c["push"] + (1.0 - model.p_push) * c["fail"]
                             - model.p_push * c["deliver"] * loads)).astype(np.int64)
     back = int(round(scale * c["push"]))
-    pick = {k: int(round(scale * (c["pickup"] + (1.0 - p) * c["fail"])))
+    pick = {k: int(round(scale * attempt_cost(c["pickup"], c["fail"], p)))
             for k, p in model.p_pickup.items()}
     cum = np.concatenate([[0], np.cumsum(stack)])
     units = problem.units

@@ -281,6 +281,10 @@ class TransitionRow(BaseModel):
     trials: float
     real_successes: float
     real_trials: float
+    sim_discount: float | None = Field(None, description="the share of the simulated counts T uses in "
+                                                         "this context (1: reality agrees with the particle "
+                                                         "worlds so far; near 0: it contradicts them); "
+                                                         "null without simulated counts")
 
 
 class TransitionView(BaseModel):

@@ -51,8 +51,9 @@ def register(sub) -> None:
                         "the mass is off for TMP-RL)")
     p.add_argument("--milestones", default=None,
                    help="`milestones`: comma-separated episodes (default: 5 evenly spaced)")
-    p.add_argument("--probe-trials", type=int, default=DEFAULT_PROBE_TRIALS,
-                   help="seeded trials per probe when estimating the true T (cached in DIR/true_T.json)")
+    p.add_argument("--probe-trials", type=int, default=None,
+                   help=f"seeded trials per probe when estimating the true T (cached in DIR/true_T.json; "
+                        f"default {DEFAULT_PROBE_TRIALS}, `sweep`: 10 per truth, in DIR/true_T/)")
     p.add_argument("--probe-seed", type=int, default=0, help="seed of the T* probes")
     p.add_argument("--checkpoint-s", type=float, default=60.0,
                    help="seconds between a running run's checkpoints (kept for --resume)")
@@ -86,13 +87,17 @@ def spec_from_args(args):
         raise UsageError(f"--domain: unknown domain {args.domain!r} (known: {', '.join(domain_names())})")
     if args.scale not in ("default", "paper"):
         raise UsageError(f"--scale: must be default or paper (got {args.scale!r})")
-    base = ex.PAPER_SCALE if args.scale == "paper" else ex.DEFAULT_SCALE[args.name]
+    base = (entry.paper_scale or ex.PAPER_SCALE) if args.scale == "paper" else ex.DEFAULT_SCALE[args.name]
     runs = _int_at_least(args.runs if args.runs is not None else base["runs"], "--runs", 1, 10000)
     episodes = args.episodes if args.episodes is not None else base["episodes"]
     particles = args.particles if args.particles is not None else base["particles"]
     _int_at_least(episodes, "--episodes", 1)
     _int_at_least(particles, "--particles", 1)
     _int_at_least(args.seed, "--seed", 0)
+    if args.probe_trials is None:
+        from ..experiments.sweep import SWEEP_PROBE_TRIALS
+
+        args.probe_trials = SWEEP_PROBE_TRIALS if args.name == "sweep" else ex.DEFAULT_PROBE_TRIALS
     _int_at_least(args.probe_trials, "--probe-trials", 1, 100000)
     _int_at_least(args.probe_seed, "--probe-seed", 0)
     if not args.checkpoint_s > 0:
@@ -111,7 +116,7 @@ def spec_from_args(args):
     spec = ex.Spec(name=args.name, runs=runs, episodes=episodes, particles=particles, seed=args.seed,
                    max_steps=args.max_steps, true_size=args.true_size, milestones=milestones,
                    probe_trials=args.probe_trials, probe_seed=args.probe_seed, scale=args.scale,
-                   settings=ex.settings_for(args.name, particles), domain=args.domain,
+                   settings=ex.settings_for(args.name, particles, args.domain, args.scale), domain=args.domain,
                    particle_budget=args.particle_budget,
                    min_particles=_int_at_least(args.min_particles, "--min-particles", 1))
     try:       # every run's config must validate before anything starts
@@ -153,6 +158,10 @@ def main(args) -> int:
               file=sys.stderr)
         return 130
     summary = json.loads(Path(done["json"]).read_text())
+    if spec.name == "sweep":
+        print(json.dumps({**done, "summary": summary["summary"]}, indent=2))
+        print(Path(done["md"]).read_text())
+        return 0
     print(json.dumps({**done, "settings": {
         k: {key: v[key] for key in ("mean_utility_last_fifth", "episodes_to_converge",
                                     "final_posterior_error_mm", "optimal_plans_pct_last_fifth",

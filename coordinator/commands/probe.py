@@ -40,7 +40,8 @@ def register(subparsers) -> None:
                    help="domain to probe (default: container)")
     p.add_argument("--action", required=True, metavar="ACTION",
                    help="the domain's probe actions (container: pickup, stack, push; "
-                        "stack_and_push: pickup, stack, push, stand)")
+                        "stack_and_push: pickup, stack, push, stand, and built_stack, built_push: "
+                        "onto / of a tower the agent's own actions built, as T* probes it)")
     p.add_argument("--true-size", required=True, type=float, metavar="S",
                    help="true block side length in the world (m)")
     p.add_argument("--believed-size", type=float, default=None, metavar="B",

@@ -19,7 +19,7 @@ _FLAG_FIELDS = {"domain": "--domain", "agent": "--agent", "particles": "--partic
                 "sizes_variation": "--sizes-variation", "likelihood": "--likelihood",
                 "max_steps": "--max-steps", "shards": "--shards", "truth": "--truth",
                 "options": "--option", "particle_budget": "--particle-budget",
-                "min_particles": "--min-particles"}
+                "min_particles": "--min-particles", "reality_fail": "--reality-fail"}
 
 
 def register(sub) -> None:
@@ -53,6 +53,9 @@ def register(sub) -> None:
     p.add_argument("--sizes-variation", action="store_true", default=None, help="one block 20%% larger")
     p.add_argument("--likelihood", default=None, help=f"replay | paper (default {d.likelihood})")
     p.add_argument("--max-steps", type=int, default=None, help=f"(default {d.max_steps})")
+    p.add_argument("--reality-fail", default=None, metavar="ACTION:K",
+                   help="a reality gap the particle worlds do not know: every ACTION in a T context "
+                        ">= K fails in the simulated reality only, e.g. stack:3")
     p.add_argument("--shards", type=int, default=None, help="shard actors (default: one per CPU)")
     p.add_argument("--ray-address", default=None, help="join a running Ray cluster")
     p.add_argument("--out", default="runs/latest", help="output directory")
@@ -133,6 +136,8 @@ def _config(args) -> RunConfig:
         for field, flag in (("truth", "--truth"), ("options", "--option")):
             if not loc and msg.startswith(f"{field}.") and field in from_flags:
                 raise UsageError(f"{flag}: {msg}") from None
+        if not loc and msg.startswith("reality_fail: ") and "reality_fail" in from_flags:
+            raise UsageError(f"--reality-fail: {msg.removeprefix('reality_fail: ')}") from None
         if not loc and msg.startswith(("truth", "options")):
             raise UsageError(f"{'--config ' + args.config + ': ' if args.config else ''}{msg}") from None
         if loc and loc[0] in from_flags:

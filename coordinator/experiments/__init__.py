@@ -15,7 +15,9 @@ One module per concept:
 - ``runfiles``: run files, checkpoints and ``--resume``;
 - ``execute``: the runs on Ray, with progress and checkpoints;
 - ``analysis``: rows, convergence, the summary and its tables;
-- ``report``: the CSV, JSON, markdown and PNG files.
+- ``report``: the CSV, JSON, markdown and PNG files;
+- ``sweep``: the learning-quality sweep's truths across the prior, judged per truth
+  against its own T* (its own files: DIR/sweep.*).
 
 Every public name is re-exported here: ``from coordinator import experiments as ex`` and
 ``ex.NAME`` keep working.
@@ -31,10 +33,11 @@ from .catalogue import (AGENTS, DEFAULT_PROBE_TRIALS, DEFAULT_SCALE, EXPERIMENT_
                         settings_for)
 from .execute import execute
 from .report import CSV_COLUMNS, SYMLOG_ABOVE, SYMLOG_LINEAR, plot, summary_table, write_csv, write_outputs
+from .sweep import judge_run, prior_sizes, summarize_sweep, sweep_settings, sweep_table, write_sweep
 from .runfiles import (ResumeError, existing_runs, read_run, run_path, store_checkpoint, store_run,
                        write_atomic)
-from .true_T import (Optimality, cached_true_T, load_actions, probe_jobs, submit_probes, t_star_params,
-                     true_T_from_probes, true_transition, write_true_T)
+from .true_T import (Optimality, cached_true_T, load_actions, probe_jobs, submit_probes, t_star_files,
+                     t_star_params, true_T_from_probes, true_transition, write_true_T)
 
 __all__ = [
     "AGENTS", "CONVERGENCE_BAND", "CSV_COLUMNS", "DEFAULT_PROBE_TRIALS", "DEFAULT_SCALE",
@@ -46,5 +49,6 @@ __all__ = [
     "read_run", "robot_table", "run_config", "run_cost", "run_path", "run_seed", "settings_for",
     "store_checkpoint", "store_run", "submit_probes", "summarize", "summary_table", "t_star_params",
     "table_rows", "true_T_from_probes", "true_transition", "write_atomic", "write_csv", "write_outputs",
-    "write_true_T",
+    "write_true_T", "judge_run", "prior_sizes", "summarize_sweep", "sweep_settings", "sweep_table",
+    "write_sweep", "t_star_files",
 ]

@@ -48,6 +48,7 @@ class Setting:
     key: str                  # unique over experiments: the run directory DIR/runs/<key>
     label: str                # legend and CSV "setting"
     overrides: dict           # RunConfig fields
+    t_star: dict | None = None   # T* probe parameters of this setting's own truth (the sweep)
 
 
 @dataclass(frozen=True)
@@ -61,11 +62,14 @@ class ExperimentSpec:
     """
 
     name: str
-    settings: Callable[[int], list[Setting]]
+    settings: Callable[..., list[Setting]]
     default_scale: dict
     figure: str = "curves"
     domain: str = "container"
     true_size: float = EXPERIMENT_TRUE_SIZE
+    # Settings that depend on the domain and scale: ``settings(N, domain, scale)`` (the sweep).
+    per_domain: bool = False
+    paper_scale: dict | None = None      # its own --scale paper (default: PAPER_SCALE)
 
 
 def particle_counts(n_max: int) -> list[int]:
@@ -118,7 +122,17 @@ REGISTRY: dict[str, ExperimentSpec] = {e.name: e for e in (
                    {"runs": 3, "episodes": 37, "particles": 16}),
     ExperimentSpec("weights", _weights_settings, {"runs": 3, "episodes": 6, "particles": 32},
                    figure="curves+density", domain=WEIGHTS_DOMAIN, true_size=WEIGHTS_TRUE_SIZE),
+    # Issue 24: hidden truths across the whole prior (coordinator.experiments.sweep).
+    ExperimentSpec("sweep", lambda n, domain="container", scale="default": _sweep_settings(n, domain, scale),
+                   {"runs": 1, "episodes": 4, "particles": 16}, figure="sweep", per_domain=True,
+                   paper_scale={"runs": 3, "episodes": 8, "particles": 32}),
 )}
+
+
+def _sweep_settings(particles: int, domain: str, scale: str) -> list[Setting]:
+    from .sweep import sweep_settings
+
+    return sweep_settings(domain, scale)
 EXPERIMENTS = tuple(REGISTRY)
 DEFAULT_SCALE = {name: e.default_scale for name, e in REGISTRY.items()}
 
@@ -156,11 +170,16 @@ class Spec:
         return out
 
 
-def settings_for(name: str, particles: int) -> list[Setting]:
-    """The settings of experiment `name` for the largest particle count `particles`."""
+def settings_for(name: str, particles: int, domain: str | None = None,
+                 scale: str = "default") -> list[Setting]:
+    """The settings of experiment `name` for the largest particle count `particles` (and,
+    for an experiment whose settings depend on them, the domain and scale)."""
     if name not in REGISTRY:
         raise ValueError(f"unknown experiment {name!r} (known: {', '.join(EXPERIMENTS)})")
-    return REGISTRY[name].settings(particles)
+    entry = REGISTRY[name]
+    if entry.per_domain:
+        return entry.settings(particles, domain or entry.domain, scale)
+    return entry.settings(particles)
 
 
 def default_milestones(episodes: int, count: int = 5) -> tuple[int, ...]:

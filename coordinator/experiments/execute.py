@@ -23,7 +23,7 @@ from ..run_config import RunConfig
 from .catalogue import Spec, run_config, run_cost
 from .report import write_outputs
 from .runfiles import read_run, run_path, store_checkpoint, store_run
-from .true_T import cached_true_T, submit_probes, t_star_params, true_transition
+from .true_T import cached_true_T, submit_probes, t_star_files, true_transition
 
 
 def _run_remote():
@@ -116,9 +116,11 @@ def execute(spec: Spec, out: Path, *, resume: bool = False, progress: bool = Tru
     # Most expensive remaining work first: packs the runs well onto few CPUs.
     todo.sort(key=lambda kr: -run_cost(configs[kr]) * (1 - done_eps[kr] / spec.episodes))
 
-    params = t_star_params(spec)
-    # T*'s probes go out now, beside the runs, to share the cluster's CPUs with them.
-    probe_refs = None if cached_true_T(out, params) is not None else submit_probes(params)
+    # T*'s probes go out now, beside the runs, to share the cluster's CPUs with them (one
+    # T* for most experiments; one per truth for the sweep).
+    targets = dict(t_star_files(spec).values())
+    probe_refs = {name: None if cached_true_T(out, params, name) is not None else submit_probes(params)
+                  for name, params in targets.items()}
 
     prog = _progress_actor() if todo else None
     task = _run_remote()
@@ -150,8 +152,13 @@ def execute(spec: Spec, out: Path, *, resume: bool = False, progress: bool = Tru
                     store_checkpoint(out, spec.settings[k], r, configs[(k, r)], ckpt)
                 ep_bar.update(max(0, min(n_eps, ep_total) - ep_bar.n))
         ep_bar.update(ep_total - ep_bar.n)
-        t_star, cached = true_transition(
-            out, params, executor=lambda p: ray.get(probe_refs if probe_refs is not None else submit_probes(p)))
+        t_stars, cached = {}, True
+        for name, params in targets.items():
+            refs_of = probe_refs[name]
+            t_stars[name], was_cached = true_transition(
+                out, params, name=name,
+                executor=lambda p, r=refs_of: ray.get(r if r is not None else submit_probes(p)))
+            cached = cached and was_cached
     finally:
         run_bar.close()
         ep_bar.close()
@@ -159,7 +166,7 @@ def execute(spec: Spec, out: Path, *, resume: bool = False, progress: bool = Tru
             ray.cancel(ref, force=True)
         if prog is not None:
             ray.kill(prog)
-    files = write_outputs(spec, out, t_star)
+    files = write_outputs(spec, out, t_stars)
     return {"computed": len(todo), "resumed_from_checkpoint": resumed, "reused": reused,
             "true_T": "cached" if cached else "estimated",
             "wall_s": time.perf_counter() - t0, **files}

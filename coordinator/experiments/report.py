@@ -187,8 +187,16 @@ def summary_table(summary: dict) -> str:
 
 
 def write_outputs(spec: Spec, out: Path, t_star: dict) -> dict:
-    """Every file of the experiment from its run files and T*; their paths by kind."""
+    """Every file of the experiment from its run files and T* (or, for an experiment with
+    one T* per truth, ``{cache file: T*}``); their paths by kind."""
     from ..domains import task_half
+
+    if "transition" not in t_star:              # {cache file: T*}
+        if spec.name == "sweep":
+            from .sweep import write_sweep
+
+            return write_sweep(spec, out, t_star)
+        (t_star,) = t_star.values()
 
     optimal = Optimality(t_star["transition"], dict(task_half(spec.domain).default_costs),
                          t_star["params"]["n_blocks"], spec.domain)

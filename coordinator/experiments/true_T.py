@@ -11,7 +11,7 @@ import json
 from pathlib import Path
 from typing import Callable, Sequence
 
-from .catalogue import WEIGHTS_TRUE_DENSITY, Spec
+from .catalogue import WEIGHTS_TRUE_DENSITY, Setting, Spec
 from .runfiles import jsonable, write_atomic
 
 
@@ -58,27 +58,53 @@ def true_T_from_probes(successes: dict[tuple[str, int], int], trials: int, n_blo
     return {"pickup": float(p_pickup), "stack": stack, "push": [float(p) for p in push]}
 
 
-def t_star_params(spec: Spec, n_blocks: int = 8) -> dict:
-    """The probe parameters of `spec`'s T* (also the key of its cache)."""
+def t_star_params(spec: Spec, n_blocks: int = 8, setting: Setting | None = None) -> dict:
+    """The probe parameters of `spec`'s T* (also the key of its cache); a setting with its
+    own truth (``Setting.t_star``: e.g. the sweep's true size and density) overrides them."""
     params = {"true_size": spec.true_size, "n_blocks": n_blocks, "trials": spec.probe_trials,
               "seed": spec.probe_seed}
     if spec.domain != "container":          # (cached container estimates stay valid)
         params["domain"] = spec.domain
     if spec.name == "weights":              # T* of the heavy blocks, Y at the true mass
         params["options"] = {"density": WEIGHTS_TRUE_DENSITY, "force_from_mass": True}
+    if setting is not None and setting.t_star:
+        params.update(setting.t_star)
     return params
 
 
-def cached_true_T(out: Path, params: dict) -> dict | None:
-    """The cached T* in out/true_T.json if it was made with these parameters."""
-    path = Path(out) / "true_T.json"
+def t_star_files(spec: Spec) -> dict[str, tuple[str, dict]]:
+    """Setting key -> (cache file under DIR, T* parameters). One T* for the whole experiment
+    is ``true_T.json`` (as every experiment kept it); settings with truths of their own
+    (the sweep) get ``true_T/<key>.json`` each, shared where the parameters are equal."""
+    params = {s.key: t_star_params(spec, setting=s) for s in spec.settings}
+    distinct: list[dict] = []
+    for p in params.values():
+        if p not in distinct:
+            distinct.append(p)
+    if len(distinct) <= 1:
+        return {key: ("true_T.json", p) for key, p in params.items()}
+    first: dict[str, str] = {}
+    for key, p in params.items():
+        first.setdefault(json.dumps(jsonable(p), sort_keys=True), key)
+    return {key: (f"true_T/{first[json.dumps(jsonable(p), sort_keys=True)]}.json", p)
+            for key, p in params.items()}
+
+
+def cached_true_T(out: Path, params: dict, name: str = "true_T.json") -> dict | None:
+    """The cached T* in out/`name` if it was made with these parameters."""
+    path = Path(out) / name
     if not path.exists():
         return None
     try:
         data = json.loads(path.read_text())
     except (OSError, ValueError):
         return None
-    return data if data.get("params") == jsonable(params) else None
+    if data.get("params") != jsonable(params):
+        return None
+    # Probed some other way (e.g. stack-and-push before its towers were built by the
+    # agent's actions): not this T*.
+    jobs = {f"{a}:{k}" for a, k in probe_jobs(params["n_blocks"], params.get("domain", "container"))}
+    return data if set(data.get("successes", {})) == jobs else None
 
 
 def _probe_remote():
@@ -103,8 +129,8 @@ def submit_probes(params: dict) -> list:
             for a, k in probe_jobs(params["n_blocks"], domain)]
 
 
-def write_true_T(out: Path, params: dict, counts: Sequence[int]) -> dict:
-    """T* from the probes' success `counts` (probe_jobs order), cached in out/true_T.json."""
+def write_true_T(out: Path, params: dict, counts: Sequence[int], name: str = "true_T.json") -> dict:
+    """T* from the probes' success `counts` (probe_jobs order), cached in out/`name`."""
     domain = params.get("domain", "container")
     jobs = probe_jobs(params["n_blocks"], domain)
     successes = dict(zip(jobs, (int(c) for c in counts)))
@@ -113,22 +139,23 @@ def write_true_T(out: Path, params: dict, counts: Sequence[int]) -> dict:
             "transition": from_probes(successes, params["trials"], params["n_blocks"]),
             "successes": {f"{a}:{k}": successes[(a, k)] for a, k in jobs},
             "method": " ".join((from_probes.__doc__ or "").split())}
-    write_atomic(Path(out) / "true_T.json", json.dumps(data, indent=2))
+    write_atomic(Path(out) / name, json.dumps(data, indent=2))
     return data
 
 
 def true_transition(out: Path, params: dict,
-                    executor: Callable[[dict], Sequence[int]] | None = None) -> tuple[dict, bool]:
-    """(T* record, was_cached): the cached out/true_T.json, or estimated by `executor`
+                    executor: Callable[[dict], Sequence[int]] | None = None,
+                    name: str = "true_T.json") -> tuple[dict, bool]:
+    """(T* record, was_cached): the cached out/`name`, or estimated by `executor`
     (default: the probes as Ray tasks) and cached."""
-    cached = cached_true_T(out, params)
+    cached = cached_true_T(out, params, name)
     if cached is not None:
         return cached, True
     if executor is None:
         import ray
 
         executor = lambda p: ray.get(submit_probes(p))
-    return write_true_T(out, params, executor(params)), False
+    return write_true_T(out, params, executor(params), name), False
 
 
 def load_actions(loads: Sequence[int]) -> list[str]:

@@ -310,25 +310,29 @@ class StackAndPushDomain:
         them): a stack onto 0..n-1 (a block must stay free; 0 is the empty start site,
         which ``t_star_probe_jobs`` asks for), a push or stand of 1..n."""
         n = self.spec.n_blocks
-        return range(n) if action == "stack" else range(1, n + 1)
+        return range(n) if action.removeprefix("built_") == "stack" else range(1, n + 1)
 
     # -- T* (what `tmoc experiment` compares the learned T against) -------------------
     @staticmethod
     def t_star_probe_jobs(n_blocks: int) -> list[tuple[str, int]]:
         """(action, tower height) of the probes T* needs: pickup; a pickup then a stack
-        onto a tower of h, h = 0..n-1; a push of a tower of k, k = 1..n."""
-        return ([("pickup", 1)] + [("stack", h) for h in range(n_blocks)]
-                + [("push", k) for k in range(1, n_blocks + 1)])
+        onto a tower of h, h = 0..n-1; a push of a tower of k, k = 1..n. The towers are
+        built by the agent's own pickups and stacks (``built_*`` probes), so T* judges the
+        towers the agent really pushes."""
+        return ([("pickup", 1)] + [("built_stack", h) for h in range(n_blocks)]
+                + [("built_push", k) for k in range(1, n_blocks + 1)])
 
     @staticmethod
     def t_star_from_probes(successes: dict, trials: int, n_blocks: int) -> dict:
         """T* from probe counts: pickup is its rate; stack[h] is the rate of "pick up, then
         stack onto a tower of h" divided by the pickup rate (clipped to [0, 1]; 0 if no
-        pickup succeeded); push[k-1] is the rate of pushing a tower of k."""
+        pickup succeeded); push[k-1] is the rate of pushing a tower of k; the towers are
+        built by the agent's own actions."""
         p_pickup = successes[("pickup", 1)] / trials
-        stack = [0.0 if p_pickup == 0 else float(min(1.0, successes[("stack", h)] / trials / p_pickup))
+        kind = "built_" if ("built_push", 1) in successes else ""   # (caches from before: synthetic towers)
+        stack = [0.0 if p_pickup == 0 else float(min(1.0, successes[(kind + "stack", h)] / trials / p_pickup))
                  for h in range(n_blocks)]
-        push = [successes[("push", k)] / trials for k in range(1, n_blocks + 1)]
+        push = [successes[(kind + "push", k)] / trials for k in range(1, n_blocks + 1)]
         return {"pickup": float(p_pickup), "stack": stack, "push": [float(p) for p in push]}
 
     def check_action(self, action: str) -> None:

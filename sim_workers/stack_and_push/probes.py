@@ -15,9 +15,12 @@ from ..configuration import Configuration, quat_from_yaw
 from ..grounded_world import GroundedWorld, act
 from ..reality_gap import PLACEMENT_JITTER_M, YAW_JITTER_RAD, jitter_planar
 
-PROBE_ACTIONS = ("pickup", "stack", "push", "stand")
+PROBE_ACTIONS = ("pickup", "stack", "push", "stand", "built_stack", "built_push")
 STAND_S = 2.0            # how long a tower is left alone in the `stand` probe
 TOWER_JITTER_M = PLACEMENT_JITTER_M / 2
+# `built_*` probes build their tower with the agent's own actions; a build that fails
+# (rare with Y at the truth) is started again from a fresh supply row this many times.
+BUILD_TRIES = 3
 
 
 def tower_atoms(k: int) -> set[str]:
@@ -54,6 +57,9 @@ def probe_trial(domain, action: str, true_size: float, believed_size: float, loa
     The truth's density is the domain's (option ``density``); Y believes
     `believed_density` (default: the truth's), which matters when mass is in Y."""
     n = domain.spec.n_blocks
+    if action.startswith("built_"):
+        return built_probe_trial(domain, action.removeprefix("built_"), true_size, believed_size, load_k,
+                                 rng, believed_density)
     if action == "stack" and not 0 <= load_k < n:
         raise ValueError(f"load: stack onto a tower of {load_k} needs a free block (0..{n - 1})")
     if action in ("push", "stand") and not 1 <= load_k <= n:
@@ -78,6 +84,59 @@ def probe_trial(domain, action: str, true_size: float, believed_size: float, loa
             out = world.execute(still, "stand")
             return tower_atoms(load_k) <= out.state and "hand_empty(r)" in out.state
         b = f"b{load_k + 1}"                         # stack: pick the next block, put it on top
+        out = act(world, domain, config, believed, f"pickup(r,{b},init)")
+        if f"is_holding(r,{b})" not in out.state:
+            return False
+        out = act(world, domain, out.configuration, believed, f"stack(r,{b},tower)")
+        return tower_atoms(load_k + 1) <= out.state and "hand_empty(r)" in out.state
+
+
+def built_tower(world: GroundedWorld, domain, truth: dict, believed: dict, load_k: int,
+                rng: np.random.Generator) -> Configuration | None:
+    """b1..bk stacked on the start site the way the agent stacks them: from a jittered
+    supply row, each block picked up and stacked through Y at the believed properties
+    (the tower's crookedness is the robot's own). None if BUILD_TRIES builds fail."""
+    n = domain.spec.n_blocks
+    for _ in range(BUILD_TRIES):
+        config = domain.initial_configuration(truth)
+        config = world.reset(Configuration(config.robot, jitter_planar(rng, config.objects, range(n))), truth)
+        for i in range(load_k):
+            b = f"b{i + 1}"
+            out = act(world, domain, config, believed, f"pickup(r,{b},init)")
+            if f"is_holding(r,{b})" not in out.state:
+                break
+            out = act(world, domain, out.configuration, believed, f"stack(r,{b},tower)")
+            if not (tower_atoms(i + 1) <= out.state and "hand_empty(r)" in out.state):
+                break
+            config = out.configuration
+        else:
+            return config
+    return None
+
+
+def built_probe_trial(domain, action: str, true_size: float, believed_size: float, load_k: int,
+                      rng: np.random.Generator, believed_density: float | None = None) -> bool:
+    """`stack` onto, or `push` of, a tower of `load_k` that the agent's actions built (what
+    T* must judge: the issue-24 finding was a synthetic tower of 6 pushed 18/40 times while
+    the agent's own towers of 6 went 8/8). A tower that cannot be built fails the trial."""
+    n = domain.spec.n_blocks
+    if action == "stack" and not 0 <= load_k < n:
+        raise ValueError(f"load: stack onto a tower of {load_k} needs a free block (0..{n - 1})")
+    if action == "push" and not 1 <= load_k <= n:
+        raise ValueError(f"load: a tower of {load_k} is outside 1..{n}")
+    if action not in ("stack", "push"):
+        raise ValueError(f"action: built_{action} is not a probe (built_stack, built_push)")
+    truth = {"block_sizes": np.full(n, true_size)}
+    believed = {"block_sizes": np.full(n, believed_size),
+                "density": domain.spec.density if believed_density is None else float(believed_density)}
+    with GroundedWorld(domain) as world:
+        config = built_tower(world, domain, truth, believed, load_k, rng)
+        if config is None:
+            return False
+        if action == "push":
+            out = act(world, domain, config, believed, "push(r,tower,start,goal)")
+            return all(f"is_in(b{i + 1},goal)" in out.state for i in range(load_k))
+        b = f"b{load_k + 1}"
         out = act(world, domain, config, believed, f"pickup(r,{b},init)")
         if f"is_holding(r,{b})" not in out.state:
             return False

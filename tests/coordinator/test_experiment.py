@@ -18,6 +18,8 @@ from coordinator.cli import main
 
 TINY = ["--runs", "2", "--episodes", "2", "--particles", "4", "--max-steps", "3",
         "--probe-trials", "1", "--no-progress"]
+# The sweep has its own files and test (tests/coordinator/test_sweep.py).
+GENERIC = tuple(n for n in ex.EXPERIMENTS if n != "sweep")
 SUMMARY_KEYS = {"mean_utility_last_fifth", "episodes_to_converge", "final_posterior_error",
                 "optimal_plans_pct_last_fifth", "successful_actions_pct_last_fifth"}
 
@@ -106,7 +108,7 @@ def test_true_T_is_estimated_once_and_cached(tmp_path):
 def tiny_out(ray_cluster, tmp_path_factory):
     """Every experiment at a tiny scale into one DIR (they share the cached T*)."""
     out = tmp_path_factory.mktemp("experiments")
-    for name in ex.EXPERIMENTS:
+    for name in GENERIC:
         if name == "weights":    # another domain and T*: its own DIR (the cache holds one T*)
             own = out / "weights-dir"
             assert main(["experiment", name, *TINY, "--seed", "3", "--out", str(own)]) == 0
@@ -119,7 +121,7 @@ def tiny_out(ray_cluster, tmp_path_factory):
 
 @pytest.mark.slow
 @pytest.mark.timeout(300)          # the first one runs every experiment (tiny_out: 45 s measured under load)
-@pytest.mark.parametrize("name", ex.EXPERIMENTS)
+@pytest.mark.parametrize("name", GENERIC)
 def test_every_experiment_writes_png_csv_json(tiny_out, name):
     summary = json.loads((tiny_out / f"{name}.json").read_text())
     settings = summary["settings"]
@@ -269,7 +271,7 @@ RESULTS = Path(__file__).resolve().parents[2] / "docs"
 
 # Experiments whose default-scale run is not on the results page yet, and why (visible here
 # on purpose, not skipped silently). Empty: every experiment is measured.
-PENDING_RESULTS: dict[str, str] = {}
+PENDING_RESULTS: dict[str, str] = {"sweep": "issue 24: the sweep's default-scale run is being measured"}
 
 
 @pytest.mark.parametrize("name", [n for n in ex.EXPERIMENTS if n not in PENDING_RESULTS])

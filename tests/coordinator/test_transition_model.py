@@ -141,3 +141,54 @@ def test_round_trip_exact():
     for name in ("pickup", "stack", "push"):
         assert np.array_equal(u.successes[name], t.successes[name])
         assert np.array_equal(u.trials[name], t.trials[name])
+
+
+# -- simulated evidence where reality disagrees (issue 24) ---------------------------------
+def _contradicted(pool: ExperiencePool, k: int, real_ok: bool, sim_ok: float, times: int) -> None:
+    """`times` real stacks onto k blocks (all succeeding or all failing) beside particle
+    worlds that predicted success with weight `sim_ok`."""
+    s = loaded(k, "b9")
+    ok = s - {"is_holding(r,b9)"} | {"hand_empty(r)", "at_container(b9,c)"}
+    for _ in range(times):
+        pool.add_real(s, "stack(r,b9,c)", ok if real_ok else s, ok)
+        pool.add_simulated(s, "stack(r,b9,c)", [ok, s], ok, np.array([sim_ok, 1 - sim_ok]))
+
+
+def test_a_context_reality_contradicts_is_learned_from_the_real_outcomes():
+    """Worlds sure of success, the robot failing every time: without the discount T stays
+    above one half for ever; with it T follows the real rate within a few trials, while a
+    context where the two agree keeps its simulated evidence."""
+    for trials in (3, 5, 10, 40):
+        pool = ExperiencePool()
+        _contradicted(pool, 2, real_ok=False, sim_ok=1.0, times=trials)
+        _contradicted(pool, 1, real_ok=True, sim_ok=1.0, times=trials)
+        plain = TransitionModel.from_experience(pool, 8)
+        t = TransitionModel.from_experience(pool, 8, discount=True)
+        assert plain.probability("stack", 2) > 0.5
+        real_only = 1 / (trials + 1)                 # (0 + a) / (n + a)
+        assert t.probability("stack", 2) < 0.4 and t.probability("stack", 2) - real_only < 0.15
+        if trials >= 5:
+            assert t.probability("stack", 2) < 0.25
+        assert t.probability("stack", 1) == 1.0 and t.discounts[("stack", 1)] > 0.5
+        assert t.discounts[("stack", 2)] < 0.3
+    # No real trial yet: the worlds' evidence counts whole (what makes TMOC learn fast).
+    pool = ExperiencePool()
+    s = loaded(3, "b9")
+    pool.add_simulated(s, "stack(r,b9,c)", [s], s - {"x"} | {"y"}, np.array([1.0]))
+    t = TransitionModel.from_experience(pool, 8, discount=True)
+    assert t.discounts[("stack", 3)] == 1.0 and t.probability("stack", 3) == pytest.approx(0.5)
+
+
+def test_the_discount_tracks_a_partial_disagreement():
+    """Reality at 50 %, the worlds at 95 %: T moves from the worlds' rate towards the
+    real one as real trials accumulate, and never past it."""
+    ps = []
+    for trials in (2, 6, 20, 60):
+        pool = ExperiencePool()
+        s = loaded(2, "b9")
+        ok = s - {"is_holding(r,b9)"} | {"hand_empty(r)", "at_container(b9,c)"}
+        for i in range(trials):
+            pool.add_real(s, "stack(r,b9,c)", ok if i % 2 == 0 else s, ok)
+            pool.add_simulated(s, "stack(r,b9,c)", [ok, s], ok, np.array([0.95, 0.05]))
+        ps.append(TransitionModel.from_experience(pool, 8, discount=True).probability("stack", 2))
+    assert all(a > b for a, b in zip(ps, ps[1:])) and ps[-1] < 0.6 and ps[-1] > 0.5

@@ -82,6 +82,12 @@ def test_contexts_are_tower_heights_and_unknown_actions_raise():
 
 
 # -- optimality against an independent check -----------------------------------------------
+def attempt(cost: float, fail: float, p: float) -> float:
+    """A pickup or stack repeated until it succeeds: 1/p attempts, 1/p - 1 failing (p >= 0.02)."""
+    q = max(p, 0.02)
+    return (cost + (1 - q) * fail) / q
+
+
 def _bellman(state: frozenset[str], T: dict, costs: dict = DEFAULT_COSTS) -> float:
     """Max expected utility over every action sequence to the goal, by exact recursion over
     the symbolic model (each action's value as DESIGN section 3 defines it)."""
@@ -96,10 +102,10 @@ def _bellman(state: frozenset[str], T: dict, costs: dict = DEFAULT_COSTS) -> flo
             h = len(sp.tower(s))
             if action.startswith("pickup"):
                 p = T["pickup"]
-                v = -c["pickup"] - (1 - p) * c["fail"]
+                v = -attempt(c["pickup"], c["fail"], p)
             elif action.startswith("stack"):
                 p = T["stack"][h]
-                v = -c["stack"] - (1 - p) * c["fail"]
+                v = -attempt(c["stack"], c["fail"], p)
             else:
                 p = T["push"][h - 1]
                 v = -c["push"] - (1 - p) * c["fail"] + p * c["deliver"] * h
@@ -175,9 +181,9 @@ def _best_split(n: int, T: dict, c: dict = DEFAULT_COSTS) -> tuple[float, list[i
             else:
                 cur += 1
         loads.append(cur)
-        v = n * (-c["pickup"] - (1 - T["pickup"]) * c["fail"])
+        v = n * -attempt(c["pickup"], c["fail"], T["pickup"])
         for k in loads:
-            v += sum(-c["stack"] - (1 - T["stack"][h]) * c["fail"] for h in range(k))
+            v += sum(-attempt(c["stack"], c["fail"], T["stack"][h]) for h in range(k))
             v += -c["push"] - (1 - T["push"][k - 1]) * c["fail"] + T["push"][k - 1] * c["deliver"] * k
         best = max(best, (v, sorted(loads, reverse=True)))
     return best

@@ -15,6 +15,12 @@ from planner import task_planner as tp
 COSTS = {"pickup": 15.0, "stack": 10.0, "push": 30.0, "fail": 50.0, "deliver": 40.0}
 
 
+def attempt(cost: float, fail: float, p: float) -> float:
+    """A pickup or stack repeated until it succeeds: 1/p attempts, 1/p - 1 failing (p >= 0.02)."""
+    q = max(p, 0.02)
+    return (cost + (1 - q) * fail) / q
+
+
 # --------------------------------------------------------------------------- brute force
 
 def compositions(n: int):
@@ -35,13 +41,13 @@ def split_value(first_load: int, stacks: list[int], waiting: int, at_goal: bool,
     independently of the planner: the first trip starts with first_load blocks loaded."""
     fail = costs["fail"]
     p_pick = T["pickup"] if not isinstance(T["pickup"], dict) else None
-    value = 0.0 if p_pick is None else waiting * (-costs["pickup"] - (1 - p_pick) * fail)
+    value = 0.0 if p_pick is None else waiting * -attempt(costs["pickup"], fail, p_pick)
     returns = len(stacks) - 1 + at_goal
     value -= returns * costs["push"]
     for trip, n_stacks in enumerate(stacks):
         load = first_load if trip == 0 else 0
         for _ in range(n_stacks):
-            value += -costs["stack"] - (1 - T["stack"][load]) * fail
+            value += -attempt(costs["stack"], fail, T["stack"][load])
             load += 1
         p = T["push"][load - 1]
         value += -costs["push"] - (1 - p) * fail + p * costs["deliver"] * load
@@ -156,7 +162,7 @@ def test_sizes_variation_counts_blocks_per_class():
     T["pickup"] = {"block": 0.9, "large": 0.6}
     result = tp.plan(sy.initial_state(8), T, block_classes=classes)
     # pickups are paid once per block whatever the split: add them to the split's value
-    picks = 7 * (-15 - 0.1 * 50) + (-15 - 0.4 * 50)
+    picks = 7 * -attempt(15, 50, 0.9) - attempt(15, 50, 0.6)
     assert result.expected_utility == pytest.approx(best_split(T, 8)[0] + picks, rel=1e-6)
     assert_valid_and_consistent(sy.initial_state(8), result, T, block_classes=classes)
     assert result.optimal

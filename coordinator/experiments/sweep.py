@@ -1,0 +1,279 @@
+"""The learning-quality sweep (issue 24): hidden truths spanning the whole prior, each
+judged against the optimum under its own T*.
+
+A sweep's settings are truths, not agents: block sizes evenly over the prior of the size
+(bin centres, so neither bound nor the prior mean is favoured: 7 sizes by default, 13 at
+paper scale), a few per-block cases (``sizes_variation``: one block 20 % larger) and, for a
+domain that can put the density in L, a size x density x wrist-sensor grid. Every truth
+gets T* from probes at that truth (``Setting.t_star``), so "optimal" means optimal for the
+objects the robot is really handling.
+
+Per run: utility per episode against the expected utility of the optimum under T*,
+regret over the last half of the episodes, the episode from which it stays within
+``NEAR_OPTIMUM`` of the optimum, failures and transit fallbacks per episode, and every
+property's posterior error in units of its std. Summary: the share of truths within
+``NEAR_OPTIMUM`` by episode ``BY_EPISODE``, coverage (the share of true values inside the
+posterior's +- 2 std), the truths whose utility does not improve, and the worst truth.
+"""
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+
+from sim_workers.properties import SIZES_VARIATION_SCALE
+
+from .catalogue import Setting, Spec
+from .runfiles import run_path, write_atomic
+from .true_T import Optimality, t_star_files
+
+NEAR_OPTIMUM = 30.0        # utility: "within 30 of the T*-optimum" (the issue's aim)
+BY_EPISODE = 4             # ... by this episode (1-based)
+COVERAGE_Z = 2.0           # a true value within +- 2 posterior std is covered
+SIZE_COUNTS = {"default": 7, "paper": 13}
+# Per-block truths (index into the sizes) and the density grid, per scale.
+VARIATION_AT = {"default": (2,), "paper": (1, 6, 11)}
+DENSITY_GRID = {"default": ((3,), (900.0, 2200.0), (0.1, 3.5)),
+                "paper": ((1, 6, 11), (600.0, 1400.0, 2200.0), (0.1, 3.5))}
+SWEEP_PROBE_TRIALS = 10    # per T* probe (default scale): 14 truths' T* in ~8 CPU-min
+
+
+def prior_sizes(low: float, high: float, count: int) -> list[float]:
+    """`count` sizes at the centres of equal bins of [low, high], rounded to 0.1 mm.
+
+    >>> [round(s * 1000, 1) for s in prior_sizes(0.030, 0.060, 7)]
+    [32.1, 36.4, 40.7, 45.0, 49.3, 53.6, 57.9]
+    """
+    return [round(low + (i + 0.5) * (high - low) / count, 4) for i in range(count)]
+
+
+def _mm(size: float) -> str:
+    return f"{size * 1000:.1f}"
+
+
+def sweep_settings(domain: str, scale: str = "default") -> list[Setting]:
+    """The truths of `domain`'s sweep at `scale` ("default" or "paper")."""
+    from ..domains import load, property_space
+
+    phys = load(domain).physics
+    spec = phys.spec
+    L = property_space(phys)
+    low, high = L.bounds(1, False)
+    sizes = prior_sizes(float(low[0]), float(high[0]), SIZE_COUNTS[scale])
+    out = [Setting(f"sweep-{domain}-{_mm(s)}mm", f"{_mm(s)} mm", {"agent": "tmoc", "true_size": s},
+                   {"true_size": s}) for s in sizes]
+    for i in VARIATION_AT[scale]:
+        s = sizes[i]
+        out.append(Setting(f"sweep-{domain}-{_mm(s)}mm-perblock", f"{_mm(s)} mm, per block",
+                           {"agent": "tmoc", "true_size": s, "sizes_variation": True},
+                           {"true_size": s}))
+    if "unknown_density" in {f for f in getattr(spec, "__dataclass_fields__", {})}:
+        at, densities, sigmas = DENSITY_GRID[scale]
+        for i in at:
+            s = sizes[i]
+            for d in densities:
+                for sg in sigmas:
+                    out.append(Setting(
+                        f"sweep-{domain}-{_mm(s)}mm-rho{d:g}-sigma{sg:g}", f"{_mm(s)} mm, {d:g} kg/m3, {sg:g} N",
+                        {"agent": "tmoc", "true_size": s, "truth": {"density": d},
+                         "options": {"unknown_density": True, "force_sigma": sg}},
+                        {"true_size": s, "options": {"density": d, "force_from_mass": True}}))
+    return out
+
+
+# ----------------------------------------------------------------------------- analysis
+def true_row(config: dict, posterior: dict) -> list[tuple[str, int | None, float, float, float]]:
+    """(property, block or None, truth, posterior mean, posterior std) for every entry of
+    L that the posterior reports (per block with ``sizes_variation``)."""
+    props = posterior.get("properties") or {}
+    names = list(props) or ["size"]
+    mean, std = posterior.get("mean"), posterior.get("std")
+    n = config["n_blocks"]
+    truths = {"size": float(config["true_size"])}
+    if "density" in names:
+        truths["density"] = float(config["truth"].get("density", config["options"].get("density", 700.0)))
+    per_block = bool(config["sizes_variation"]) and mean is not None and len(mean) == n * len(names)
+    out = []
+    for j, name in enumerate(names):
+        if per_block:
+            for b in range(n):
+                t = truths[name] * (SIZES_VARIATION_SCALE if name == "size" and b == 0 else 1.0)
+                out.append((name, b, t, float(mean[j * n + b]), float(std[j * n + b])))
+        else:
+            m = props[name]["mean"] if name in props else posterior["size_mean"]
+            s = props[name]["std"] if name in props else posterior["size_std"]
+            out.append((name, None, truths[name], float(m), float(s)))
+    return out
+
+
+def _z(truth: float, mean: float, std: float) -> float:
+    err = abs(mean - truth)
+    return 0.0 if err == 0 else (err / std if std > 0 else math.inf)
+
+
+def judge_run(data: dict, optimum: float) -> dict:
+    """One run's figures against the optimum's expected utility under its T*."""
+    eps = data["episodes"]
+    u = [float(e["utility"]) for e in eps]
+    near = [x >= optimum - NEAR_OPTIMUM for x in u]
+    by = min(BY_EPISODE, len(u))
+    converged = next((i + 1 for i in range(len(u)) if all(near[i:])), None)
+    tail = u[len(u) // 2:]
+    entries = true_row(data["config"], eps[-1]["posterior"])
+    zs = [_z(t, m, s) for _, _, t, m, s in entries]
+    return {
+        "utility": u, "optimum": optimum,
+        "regret_last": optimum - float(np.mean(tail)),
+        "near_optimum_by": bool(all(near[by - 1:])),
+        "episodes_to_converge": converged,
+        # Not improving: still short of the optimum at the end, and no better than at first
+        # (undefined for a single episode).
+        "not_improving": bool(len(u) > 1 and not near[-1] and u[-1] <= u[0]),
+        "failures": [int(sum(e["failures"].values())) for e in eps],
+        "fallbacks": [int(e.get("transit_fallbacks", 0)) for e in eps],
+        "delivered": [int(e.get("delivered", 0)) for e in eps],
+        "posterior": [{"property": p, "block": b, "truth": t, "mean": m, "std": s, "z": _z(t, m, s)}
+                      for p, b, t, m, s in entries],
+        "z_max": float(max(zs)) if zs else 0.0,
+        "covered": int(sum(z <= COVERAGE_Z for z in zs)), "entries": len(zs),
+    }
+
+
+def sweep_rows(spec: Spec, out: Path, t_stars: dict) -> list[dict]:
+    """One judged row per (truth, run), in setting order."""
+    from ..domains import task_half
+
+    files = t_star_files(spec)
+    costs = dict(task_half(spec.domain).default_costs)
+    rows = []
+    for s in spec.settings:
+        t_star = t_stars[files[s.key][0]]
+        optimum = Optimality(t_star["transition"], costs, t_star["params"]["n_blocks"], spec.domain).best_value
+        for r in range(spec.runs):
+            data = json.loads(run_path(out, s, r).read_text())
+            row = {"domain": spec.domain, "case": s.label, "key": s.key, "run": r, "seed": data["seed"],
+                   "true_size": data["config"]["true_size"], "t_star": t_star["transition"]}
+            row.update(judge_run(data, optimum))
+            rows.append(row)
+    return rows
+
+
+def summarize_sweep(rows: list[dict]) -> dict:
+    """The sweep's summary lines (see the module docstring)."""
+    n = len(rows)
+    covered = sum(r["covered"] for r in rows)
+    entries = sum(r["entries"] for r in rows)
+    worst = max(rows, key=lambda r: r["regret_last"]) if rows else None
+    worst_z = max(rows, key=lambda r: r["z_max"]) if rows else None
+    return {
+        "truths": n,
+        f"near_optimum_by_episode_{BY_EPISODE}": sum(r["near_optimum_by"] for r in rows) / n if n else None,
+        "coverage": covered / entries if entries else None,
+        "truths_covered": sum(r["covered"] == r["entries"] for r in rows) / n if n else None,
+        "not_improving": [f"{r['case']} (run {r['run']})" for r in rows if r["not_improving"]],
+        "mean_regret_last": float(np.mean([r["regret_last"] for r in rows])) if n else None,
+        "worst_regret": None if worst is None else
+        {"case": worst["case"], "run": worst["run"], "regret_last": worst["regret_last"],
+         "utility": worst["utility"], "optimum": worst["optimum"]},
+        "worst_z": None if worst_z is None else
+        {"case": worst_z["case"], "run": worst_z["run"], "z_max": worst_z["z_max"]},
+        "fallbacks_per_episode": float(np.mean([np.mean(r["fallbacks"]) for r in rows])) if n else None,
+        "aims": {"near_optimum_share": 0.9, "coverage": 0.9, "not_improving": 0},
+    }
+
+
+# ----------------------------------------------------------------------------- report
+def _cell(v, digits: int = 0) -> str:
+    return "-" if v is None else f"{v:.{digits}f}"
+
+
+def sweep_table(rows: list[dict], summary: dict) -> str:
+    """Markdown: one line per truth and run, then the summary lines."""
+    lines = ["| domain | truth | run | utility per episode | optimum | regret (last half) | converged at |"
+             " failures/ep | fallbacks/ep | error/std (max) | covered |",
+             "|---|---|---|---|---|---|---|---|---|---|---|"]
+    for r in rows:
+        lines.append(
+            f"| {r['domain']} | {r['case']} | {r['run']} | {', '.join(f'{x:.0f}' for x in r['utility'])} "
+            f"| {r['optimum']:.0f} | {r['regret_last']:.0f} | {_cell(r['episodes_to_converge'])} "
+            f"| {np.mean(r['failures']):.1f} | {np.mean(r['fallbacks']):.1f} | {r['z_max']:.1f} "
+            f"| {r['covered']}/{r['entries']} |")
+    s = summary
+    key = f"near_optimum_by_episode_{BY_EPISODE}"
+    lines += ["", f"- within {NEAR_OPTIMUM:g} of the T*-optimum by episode {BY_EPISODE}: "
+                  f"{_pct(s[key])} of {s['truths']} truths (aim 90 %)",
+              f"- coverage (true value within +-{COVERAGE_Z:g} posterior std): {_pct(s['coverage'])} "
+              f"of the entries of L; every entry covered in {_pct(s['truths_covered'])} of the truths "
+              "(aim 90 %)",
+              f"- not improving from episode 1 to the last: {len(s['not_improving'])} "
+              f"({', '.join(s['not_improving']) or 'none'}) (aim 0)",
+              f"- mean regret over the last half: {_cell(s['mean_regret_last'], 1)}; transit fallbacks "
+              f"per episode: {_cell(s['fallbacks_per_episode'], 2)}"]
+    if s["worst_regret"]:
+        w = s["worst_regret"]
+        lines.append(f"- worst truth: {w['case']} (run {w['run']}), regret {w['regret_last']:.0f} "
+                     f"(utility {', '.join(f'{x:.0f}' for x in w['utility'])}, optimum {w['optimum']:.0f})")
+    if s["worst_z"]:
+        lines.append(f"- worst posterior: {s['worst_z']['case']}, {s['worst_z']['z_max']:.1f} std off")
+    return "\n".join(lines) + "\n"
+
+
+def _pct(v) -> str:
+    return "-" if v is None else f"{100 * v:.0f} %"
+
+
+def plot_sweep(rows: list[dict], path: Path) -> None:
+    """Regret and the posterior's error/std against the true size, one marker per case kind."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, (a, b) = plt.subplots(1, 2, figsize=(11, 4))
+    kinds = {"sizes": lambda r: "per block" not in r["case"] and "kg/m3" not in r["case"],
+             "per block": lambda r: "per block" in r["case"], "density grid": lambda r: "kg/m3" in r["case"]}
+    for (label, pick), marker in zip(kinds.items(), "o^s"):
+        sel = [r for r in rows if pick(r)]
+        if not sel:
+            continue
+        x = [1000 * r["true_size"] for r in sel]
+        a.scatter(x, [r["regret_last"] for r in sel], marker=marker, label=label)
+        b.scatter(x, [min(r["z_max"], 20.0) for r in sel], marker=marker, label=label)
+    a.axhline(NEAR_OPTIMUM, color="grey", ls="--", lw=1)
+    a.set(xlabel="true block size (mm)", ylabel="regret over the last half (utility)",
+          title="regret against the T*-optimum")
+    a.set_yscale("symlog", linthresh=50)
+    b.axhline(COVERAGE_Z, color="grey", ls="--", lw=1)
+    b.set(xlabel="true block size (mm)", ylabel="|error| / posterior std (max over L, capped at 20)",
+          title="posterior calibration")
+    a.legend()
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def write_sweep(spec: Spec, out: Path, t_stars: dict) -> dict:
+    """DIR/sweep.{json,csv,md,png} from the run files and the truths' T*."""
+    import csv
+    import io
+
+    out = Path(out)
+    rows = sweep_rows(spec, out, t_stars)
+    summary = summarize_sweep(rows)
+    paths = {"csv": out / "sweep.csv", "json": out / "sweep.json", "png": out / "sweep.png",
+             "md": out / "sweep.md"}
+    write_atomic(paths["json"], json.dumps({"spec": spec.to_dict(), "summary": summary, "rows": rows}, indent=1))
+    buf = io.StringIO()
+    cols = ["domain", "case", "run", "seed", "true_size", "optimum", "regret_last", "near_optimum_by",
+            "episodes_to_converge", "not_improving", "z_max", "covered", "entries"]
+    w = csv.writer(buf)
+    w.writerow(cols + ["utility", "failures", "fallbacks"])
+    for r in rows:
+        w.writerow([r[c] for c in cols] + [" ".join(f"{x:g}" for x in r[k])
+                                           for k in ("utility", "failures", "fallbacks")])
+    write_atomic(paths["csv"], buf.getvalue())
+    write_atomic(paths["md"], sweep_table(rows, summary))
+    plot_sweep(rows, paths["png"])
+    return {k: str(v) for k, v in paths.items()}

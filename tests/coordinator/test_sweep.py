@@ -1,0 +1,122 @@
+"""The learning-quality sweep (`tmoc experiment sweep`, benchmarks/bench_learning.py): its
+truths span the prior, each run is judged against its own truth's T*, and the summary
+lines count what the issue's aims count."""
+from __future__ import annotations
+
+import csv
+import json
+
+import numpy as np
+import pytest
+
+from coordinator import experiments as ex
+from coordinator.cli import main
+from coordinator.experiments.sweep import BY_EPISODE, NEAR_OPTIMUM
+
+
+def _run(utilities, sizes_mean=0.045, size_std=0.001, true_size=0.045, **config):
+    cfg = {"n_blocks": 8, "true_size": true_size, "sizes_variation": False, "truth": {}, "options": {},
+           **config}
+    post = {"size_mean": sizes_mean, "size_std": size_std, "mean": [sizes_mean], "std": [size_std],
+            "properties": {"size": {"mean": sizes_mean, "std": size_std, "unit": "m"}}}
+    eps = [{"utility": u, "failures": {"stack": 1}, "transit_fallbacks": 0, "delivered": 8,
+            "posterior": post} for u in utilities]
+    return {"config": cfg, "episodes": eps}
+
+
+def test_truths_span_the_prior_of_every_domain():
+    sizes = ex.prior_sizes(0.030, 0.060, 7)
+    assert len(sizes) == 7 and sizes[0] > 0.030 and sizes[-1] < 0.060
+    assert np.allclose(np.diff(sizes), 0.030 / 7, atol=1e-4)
+    container = ex.sweep_settings("container")
+    sp = ex.sweep_settings("stack_and_push")
+    for settings in (container, sp):
+        keys = [s.key for s in settings]
+        assert len(keys) == len(set(keys))
+        assert sum("per block" in s.label for s in settings) == 1
+        plain = [s for s in settings if "per block" not in s.label and "kg/m3" not in s.label]
+        assert [s.overrides["true_size"] for s in plain] == sizes
+        for s in settings:       # every truth carries the T* probe parameters of its own truth
+            assert s.t_star["true_size"] == s.overrides["true_size"]
+    grid = [s for s in sp if "kg/m3" in s.label]       # size x density x sensor
+    assert {(s.overrides["truth"]["density"], s.overrides["options"]["force_sigma"]) for s in grid} == \
+        {(900.0, 0.1), (900.0, 3.5), (2200.0, 0.1), (2200.0, 3.5)}
+    assert all(s.t_star["options"]["density"] == s.overrides["truth"]["density"] for s in grid)
+    assert not any("kg/m3" in s.label for s in container)      # the container has no density in L
+    paper = ex.sweep_settings("container", "paper")
+    assert sum("per block" not in s.label for s in paper) == 13
+
+
+def test_each_truth_gets_its_own_T_star_file():
+    from coordinator.cli import build_parser
+    from coordinator.commands.experiment import spec_from_args
+
+    spec = spec_from_args(build_parser().parse_args(["experiment", "sweep", "--domain", "stack_and_push"]))
+    files = ex.t_star_files(spec)
+    assert len(files) == len(spec.settings)
+    names = {name for name, _ in files.values()}
+    # the per-block case shares its size's T* (T* is probed with equal blocks), and the two
+    # sensors of one density share theirs (the sensor does not change what the robot can do)
+    assert len(names) == 7 + 2
+    assert all(name.startswith("true_T/") for name in names)
+    assert spec.probe_trials == 10 and (spec.runs, spec.episodes, spec.particles) == (1, 4, 16)
+    one = spec_from_args(build_parser().parse_args(["experiment", "compare"]))
+    assert {name for name, _ in ex.t_star_files(one).values()} == {"true_T.json"}
+
+
+def test_judging_a_run_against_its_optimum():
+    good = ex.judge_run(_run([-100, 95, 110, 110]), optimum=110.0)
+    assert good["near_optimum_by"] and good["episodes_to_converge"] == 2
+    assert good["regret_last"] == 0.0 and not good["not_improving"]
+    assert good["covered"] == good["entries"] == 1 and good["z_max"] == 0.0
+    stuck = ex.judge_run(_run([-1800, -1700, -1900, -1850], sizes_mean=0.049, size_std=0.001,
+                              true_size=0.045), optimum=110.0)
+    assert not stuck["near_optimum_by"] and stuck["episodes_to_converge"] is None
+    assert stuck["not_improving"] and stuck["regret_last"] == pytest.approx(110 + 1875)
+    assert stuck["z_max"] == pytest.approx(4.0) and stuck["covered"] == 0
+    late = ex.judge_run(_run([-500, -400, -300, 110 - NEAR_OPTIMUM]), optimum=110.0)
+    assert late["near_optimum_by"] == (BY_EPISODE <= 4) and late["episodes_to_converge"] == 4
+    assert not ex.judge_run(_run([-500]), optimum=110.0)["not_improving"]    # one episode: undefined
+
+
+def test_per_block_truths_are_judged_per_block():
+    run = _run([110, 110], sizes_variation=True)
+    mean = [0.054] + [0.045] * 7                # block 1 is 20 % larger: 54 mm
+    run["episodes"][-1]["posterior"].update(mean=mean, std=[0.001] * 8)
+    judged = ex.judge_run(run, optimum=110.0)
+    assert judged["entries"] == 8 and judged["covered"] == 8
+    run["episodes"][-1]["posterior"]["mean"] = [0.030] + [0.045] * 7       # locked in at the floor
+    judged = ex.judge_run(run, optimum=110.0)
+    assert judged["covered"] == 7 and judged["z_max"] == pytest.approx(24.0)
+
+
+def test_summary_lines():
+    rows = [dict(ex.judge_run(_run(u), optimum=110.0), case=c, run=0, domain="container")
+            for c, u in (("a", [110, 110]), ("b", [-900, -1000]), ("c", [100, 105]))]
+    s = ex.summarize_sweep(rows)
+    assert s["truths"] == 3
+    assert s[f"near_optimum_by_episode_{BY_EPISODE}"] == pytest.approx(2 / 3)
+    assert s["not_improving"] == ["b (run 0)"] and s["worst_regret"]["case"] == "b"
+    assert s["coverage"] == 1.0
+    table = ex.sweep_table(rows, s)
+    assert table.count("\n| container |") == 3 and "67 % of 3 truths" in table
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(600)
+def test_sweep_writes_its_files(ray_cluster, tmp_path):
+    out = tmp_path / "sweep"
+    assert main(["experiment", "sweep", "--episodes", "1", "--particles", "4", "--max-steps", "3",
+                 "--probe-trials", "1", "--no-progress", "--seed", "3", "--out", str(out)]) == 0
+    data = json.loads((out / "sweep.json").read_text())
+    n = len(ex.sweep_settings("container"))
+    assert len(data["rows"]) == n and data["summary"]["truths"] == n
+    assert len(list((out / "true_T").glob("*.json"))) == n - 1
+    for row in data["rows"]:
+        t_star = json.loads((out / "true_T" / f"{row['key'].removesuffix('-perblock')}.json").read_text())
+        assert t_star["params"]["true_size"] == row["true_size"]
+        assert len(row["utility"]) == 1 and row["optimum"] <= 150
+    with open(out / "sweep.csv", newline="") as f:
+        assert len(list(csv.DictReader(f))) == n
+    assert (out / "sweep.md").read_text() == ex.sweep_table(data["rows"], data["summary"])
+    assert (out / "sweep.png").read_bytes()[:4] == b"\x89PNG"
