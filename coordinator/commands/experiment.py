@@ -48,7 +48,8 @@ def register(sub) -> None:
     p.add_argument("--true-size", type=float, default=None,
                    help=f"hidden block size (m; default {EXPERIMENT_TRUE_SIZE}, off the prior mean "
                         "0.045 on purpose: see docs/RESULTS.md; `weights`: 0.045, so that only "
-                        "the mass is off for TMP-RL)")
+                        "the mass is off for TMP-RL; `compare`: one size per run, drawn across the "
+                        "prior, each judged against its own T*, unless this fixes one)")
     p.add_argument("--milestones", default=None,
                    help="`milestones`: comma-separated episodes (default: 5 evenly spaced)")
     p.add_argument("--probe-trials", type=int, default=None,
@@ -81,6 +82,7 @@ def spec_from_args(args):
     entry = ex.REGISTRY[args.name]
     if args.domain is None:
         args.domain = entry.domain
+    across = entry.truths_across_prior and args.true_size is None
     if args.true_size is None:
         args.true_size = entry.true_size
     if args.domain not in domain_names():
@@ -118,7 +120,9 @@ def spec_from_args(args):
                    probe_trials=args.probe_trials, probe_seed=args.probe_seed, scale=args.scale,
                    settings=ex.settings_for(args.name, particles, args.domain, args.scale), domain=args.domain,
                    particle_budget=args.particle_budget,
-                   min_particles=_int_at_least(args.min_particles, "--min-particles", 1))
+                   min_particles=_int_at_least(args.min_particles, "--min-particles", 1),
+                   truths=(ex.prior_truths(args.domain, runs, args.seed, ex.EXPERIMENTS.index(args.name))
+                           if across else ()))
     try:       # every run's config must validate before anything starts
         for k in range(len(spec.settings)):
             ex.run_config(spec, k, 0)

@@ -29,8 +29,8 @@ from .analysis import (CONVERGENCE_BAND, convergence_episode, milestone_table, p
 from .catalogue import (AGENTS, DEFAULT_PROBE_TRIALS, DEFAULT_SCALE, EXPERIMENT_TRUE_SIZE, EXPERIMENTS,
                         PAPER_SCALE, PARTICLE_FRACTIONS, REGISTRY, ROBOT_EPISODES, WEIGHTS_DOMAIN,
                         WEIGHTS_SIGMAS, WEIGHTS_TRUE_DENSITY, WEIGHTS_TRUE_SIZE, ExperimentSpec, Setting,
-                        Spec, default_milestones, particle_counts, run_config, run_cost, run_seed,
-                        settings_for)
+                        Spec, default_milestones, particle_counts, prior_truths, run_config, run_cost,
+                        run_seed, settings_for)
 from .execute import execute
 from .report import CSV_COLUMNS, SYMLOG_ABOVE, SYMLOG_LINEAR, plot, summary_table, write_csv, write_outputs
 from .sweep import judge_run, prior_sizes, summarize_sweep, sweep_settings, sweep_table, write_sweep
@@ -50,5 +50,5 @@ __all__ = [
     "store_checkpoint", "store_run", "submit_probes", "summarize", "summary_table", "t_star_params",
     "table_rows", "true_T_from_probes", "true_transition", "write_atomic", "write_csv", "write_outputs",
     "write_true_T", "judge_run", "prior_sizes", "summarize_sweep", "sweep_settings", "sweep_table",
-    "write_sweep", "t_star_files",
+    "write_sweep", "t_star_files", "prior_truths",
 ]

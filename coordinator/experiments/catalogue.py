@@ -69,6 +69,9 @@ class ExperimentSpec:
     true_size: float = EXPERIMENT_TRUE_SIZE
     # Settings that depend on the domain and scale: ``settings(N, domain, scale)`` (the sweep).
     per_domain: bool = False
+    # Run r's hidden size drawn from bin r of the prior (``prior_truths``) unless --true-size
+    # fixes one: no single size decides the comparison (issue 24).
+    truths_across_prior: bool = False
     paper_scale: dict | None = None      # its own --scale paper (default: PAPER_SCALE)
 
 
@@ -102,7 +105,7 @@ def _weights_settings(_particles: int) -> list[Setting]:
 # Appended, never reordered: a run's seed derives from its experiment's index here.
 REGISTRY: dict[str, ExperimentSpec] = {e.name: e for e in (
     ExperimentSpec("compare", lambda n: [Setting(f"compare-{a}", a, {"agent": a}) for a in AGENTS],
-                   {"runs": 3, "episodes": 30, "particles": 16}),
+                   {"runs": 3, "episodes": 30, "particles": 16}, truths_across_prior=True),
     ExperimentSpec("particles", lambda n: [Setting(f"particles-N{k}", f"N={k}", {"agent": "tmoc", "particles": k})
                                            for k in particle_counts(n)],
                    {"runs": 3, "episodes": 20, "particles": 24}),
@@ -156,6 +159,7 @@ class Spec:
     domain: str = "container"
     particle_budget: str = "fixed"
     min_particles: int = 8
+    truths: tuple[float, ...] = ()        # run r's hidden size (empty: true_size for every run)
 
     def to_dict(self) -> dict:
         out = {"name": self.name, "runs": self.runs, "episodes": self.episodes,
@@ -167,7 +171,31 @@ class Spec:
             out["domain"] = self.domain
         if self.particle_budget != "fixed":
             out["particle_budget"], out["min_particles"] = self.particle_budget, self.min_particles
+        if self.truths:
+            out["truths"] = list(self.truths)
         return out
+
+    def run_truth(self, r: int) -> float:
+        """Run r's hidden block size."""
+        return self.truths[r] if self.truths else self.true_size
+
+
+def prior_truths(domain: str, runs: int, seed: int, experiment: int) -> tuple[float, ...]:
+    """One hidden size per run, run r's drawn uniformly from bin r of `runs` equal bins of
+    the domain's size prior (rounded to 0.1 mm): the truths span the prior, and each is
+    fixed by (seed, experiment, r) alone, like the run seeds.
+
+    >>> [round(s * 1000, 1) for s in prior_truths("container", 3, 0, 0)]
+    [35.7, 43.6, 51.3]
+    """
+    from ..domains import load, property_space
+
+    low, high = (float(v[0]) for v in property_space(load(domain).physics).bounds(1, False))
+    out = []
+    for r in range(runs):
+        u = np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(experiment, r))).random()
+        out.append(round(low + (r + u) / runs * (high - low), 4))
+    return tuple(out)
 
 
 def settings_for(name: str, particles: int, domain: str | None = None,
@@ -197,7 +225,7 @@ def run_config(spec: Spec, k: int, r: int) -> RunConfig:
     """RunConfig of run r of setting k (pydantic ValidationError on bad values)."""
     s = spec.settings[k]
     fields = {"domain": spec.domain, "particles": spec.particles, "episodes": spec.episodes,
-              "max_steps": spec.max_steps, "true_size": spec.true_size,
+              "max_steps": spec.max_steps, "true_size": spec.run_truth(r),
               "seed": run_seed(spec.seed, EXPERIMENTS.index(spec.name), k, r),
               "particle_budget": spec.particle_budget, "min_particles": spec.min_particles}
     fields.update(s.overrides)

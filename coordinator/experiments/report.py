@@ -14,7 +14,7 @@ import numpy as np
 from .analysis import summarize, table_rows
 from .catalogue import REGISTRY, WEIGHTS_TRUE_DENSITY, Spec
 from .runfiles import write_atomic
-from .true_T import Optimality
+from .true_T import Optimality, t_star_files
 
 SYMLOG_ABOVE, SYMLOG_LINEAR = 1000.0, 200.0        # utility plot: symlog when curves span > 1000
 CSV_COLUMNS = ("setting", "run", "episode", "seed", "agent", "particles", "utility", "actions",
@@ -69,8 +69,7 @@ def _milestone_bars(plt, spec: Spec, table: list[dict]):
                           else f"{t['from_episode']}-{t['episode']}" for t in rows])
         ax.set_ylim(0, 105)
         ax.set_xlabel("episodes"); ax.set_ylabel("%"); ax.set_title(f"{title} (mean ± std over runs)")
-    fig.suptitle(f"milestones: TMOC, {spec.runs} runs, N = {spec.particles}, "
-                 f"true size {spec.true_size * 1000:.0f} mm")
+    fig.suptitle(f"milestones: TMOC, {spec.runs} runs, N = {spec.particles}, {truth_label(spec.to_dict())}")
     return fig
 
 
@@ -112,10 +111,16 @@ def _curves(plt, spec: Spec, arrays: dict, density: bool):
     for ax in axes:
         ax.xaxis.set_major_locator(MaxNLocator(integer=True))
     ax1.legend(fontsize=8)
-    fig.suptitle(f"{spec.name}: {spec.runs} runs x {spec.episodes} episodes, "
-                 f"true size {spec.true_size * 1000:.0f} mm"
+    fig.suptitle(f"{spec.name}: {spec.runs} runs x {spec.episodes} episodes, {truth_label(spec.to_dict())}"
                  + (f", density {WEIGHTS_TRUE_DENSITY:.0f} kg/m^3" if density else ""))
     return fig
+
+
+def truth_label(spec: dict) -> str:
+    """"true size 34 mm", or the runs' sizes across the prior."""
+    if spec.get("truths"):
+        return "true sizes " + ", ".join(f"{t * 1000:.1f}" for t in spec["truths"]) + " mm (one per run)"
+    return f"true size {spec['true_size'] * 1000:.0f} mm"
 
 
 def _fmt(v, digits: int = 1, unit: str = "") -> str:
@@ -128,11 +133,17 @@ def summary_table(summary: dict) -> str:
     from ..agents import agent
 
     spec = summary["spec"]
+    optima = summary["optimum_under_true_T"]
+    if isinstance(optima, list):       # one truth per run
+        best = "optimum under T* per truth: " + "; ".join(
+            f"{'+'.join(map(str, o['loads']))} (expected utility {o['expected_utility']:.1f})" for o in optima)
+    else:
+        best = (f"optimum under T*: {'+'.join(map(str, optima['loads']))} "
+                f"(expected utility {optima['expected_utility']:.1f}")
     lines = [f"`{summary['experiment']}`: {spec['runs']} runs x {spec['episodes']} episodes, "
-             f"true size {spec['true_size'] * 1000:.0f} mm, seed {spec['seed']}; optimum under T*: "
-             f"{'+'.join(map(str, summary['optimum_under_true_T']['loads']))} "
-             f"(expected utility {summary['optimum_under_true_T']['expected_utility']:.1f}, without "
-             "the all-delivered bonus that every complete plan earns alike)",
+             f"{truth_label(spec)}, seed {spec['seed']}; {best}"
+             f"{'; ' if isinstance(optima, list) else ', '}without "
+             f"the all-delivered bonus that every complete plan earns alike{'' if isinstance(optima, list) else ')'}",
              "",
              "| setting | N | utility, last fifth (mean ± std over runs) | episodes to converge "
              "| posterior error (mm) | optimal plans, last fifth | successful actions, last fifth "
@@ -188,21 +199,25 @@ def summary_table(summary: dict) -> str:
 
 def write_outputs(spec: Spec, out: Path, t_star: dict) -> dict:
     """Every file of the experiment from its run files and T* (or, for an experiment with
-    one T* per truth, ``{cache file: T*}``); their paths by kind."""
+    a T* per truth, ``{cache file: T*}``); their paths by kind."""
     from ..domains import task_half
 
-    if "transition" not in t_star:              # {cache file: T*}
-        if spec.name == "sweep":
-            from .sweep import write_sweep
+    costs = dict(task_half(spec.domain).default_costs)
+    if "transition" in t_star:
+        t_star = {"true_T.json": t_star}
+    elif spec.name == "sweep":
+        from .sweep import write_sweep
 
-            return write_sweep(spec, out, t_star)
-        (t_star,) = t_star.values()
-
-    optimal = Optimality(t_star["transition"], dict(task_half(spec.domain).default_costs),
-                         t_star["params"]["n_blocks"], spec.domain)
-    rows, arrays = table_rows(spec, out, optimal)
-    summary = summarize(spec, arrays, optimal)
-    summary["true_T"] = t_star["transition"]
+        return write_sweep(spec, out, t_star)
+    files = t_star_files(spec)
+    judges = {name: Optimality(t["transition"], costs, t["params"]["n_blocks"], spec.domain)
+              for name, t in t_star.items()}
+    judge_of = lambda k, r: judges[files[(spec.settings[k].key, r)][0]]  # noqa: E731
+    rows, arrays = table_rows(spec, out, judge_of)
+    summary = summarize(spec, arrays, judge_of)
+    summary["true_T"] = (next(iter(t_star.values()))["transition"] if len(t_star) == 1
+                         else [t_star[files[(spec.settings[0].key, r)][0]]["transition"]
+                               for r in range(spec.runs)])
     paths = {"csv": out / f"{spec.name}.csv", "json": out / f"{spec.name}.json",
              "png": out / f"{spec.name}.png", "md": out / f"{spec.name}.md"}
     write_csv(rows, paths["csv"])

@@ -149,9 +149,10 @@ def sweep_rows(spec: Spec, out: Path, t_stars: dict) -> list[dict]:
     costs = dict(task_half(spec.domain).default_costs)
     rows = []
     for s in spec.settings:
-        t_star = t_stars[files[s.key][0]]
-        optimum = Optimality(t_star["transition"], costs, t_star["params"]["n_blocks"], spec.domain).best_value
         for r in range(spec.runs):
+            t_star = t_stars[files[(s.key, r)][0]]
+            optimum = Optimality(t_star["transition"], costs, t_star["params"]["n_blocks"],
+                                 spec.domain).best_value
             data = json.loads(run_path(out, s, r).read_text())
             row = {"domain": spec.domain, "case": s.label, "key": s.key, "run": r, "seed": data["seed"],
                    "true_size": data["config"]["true_size"], "t_star": t_star["transition"]}

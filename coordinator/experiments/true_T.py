@@ -72,22 +72,26 @@ def t_star_params(spec: Spec, n_blocks: int = 8, setting: Setting | None = None)
     return params
 
 
-def t_star_files(spec: Spec) -> dict[str, tuple[str, dict]]:
-    """Setting key -> (cache file under DIR, T* parameters). One T* for the whole experiment
-    is ``true_T.json`` (as every experiment kept it); settings with truths of their own
-    (the sweep) get ``true_T/<key>.json`` each, shared where the parameters are equal."""
-    params = {s.key: t_star_params(spec, setting=s) for s in spec.settings}
-    distinct: list[dict] = []
-    for p in params.values():
-        if p not in distinct:
-            distinct.append(p)
+def t_star_files(spec: Spec) -> dict[tuple[str, int], tuple[str, dict]]:
+    """(setting key, run) -> (cache file under DIR, T* parameters). One T* for the whole
+    experiment is ``true_T.json`` (as every experiment kept it); truths of their own (the
+    sweep's settings, or runs across the prior) get ``true_T/<key>[-run<r>].json`` each,
+    shared where the parameters are equal."""
+    params = {}
+    for s in spec.settings:
+        for r in range(spec.runs):
+            p = t_star_params(spec, setting=s)
+            if spec.truths:
+                p["true_size"] = spec.truths[r]
+            params[(s.key, r)] = p
+    distinct = {json.dumps(jsonable(p), sort_keys=True) for p in params.values()}
     if len(distinct) <= 1:
-        return {key: ("true_T.json", p) for key, p in params.items()}
+        return {kr: ("true_T.json", p) for kr, p in params.items()}
     first: dict[str, str] = {}
-    for key, p in params.items():
-        first.setdefault(json.dumps(jsonable(p), sort_keys=True), key)
-    return {key: (f"true_T/{first[json.dumps(jsonable(p), sort_keys=True)]}.json", p)
-            for key, p in params.items()}
+    for (key, r), p in params.items():
+        first.setdefault(json.dumps(jsonable(p), sort_keys=True), f"{key}-run{r}" if spec.truths else key)
+    return {kr: (f"true_T/{first[json.dumps(jsonable(p), sort_keys=True)]}.json", p)
+            for kr, p in params.items()}
 
 
 def cached_true_T(out: Path, params: dict, name: str = "true_T.json") -> dict | None:

@@ -53,15 +53,36 @@ def test_each_truth_gets_its_own_T_star_file():
 
     spec = spec_from_args(build_parser().parse_args(["experiment", "sweep", "--domain", "stack_and_push"]))
     files = ex.t_star_files(spec)
-    assert len(files) == len(spec.settings)
+    assert len(files) == len(spec.settings) * spec.runs
     names = {name for name, _ in files.values()}
     # the per-block case shares its size's T* (T* is probed with equal blocks), and the two
     # sensors of one density share theirs (the sensor does not change what the robot can do)
     assert len(names) == 7 + 2
     assert all(name.startswith("true_T/") for name in names)
     assert spec.probe_trials == 10 and (spec.runs, spec.episodes, spec.particles) == (1, 4, 16)
-    one = spec_from_args(build_parser().parse_args(["experiment", "compare"]))
+    one = spec_from_args(build_parser().parse_args(["experiment", "compare", "--true-size", "0.034"]))
     assert {name for name, _ in ex.t_star_files(one).values()} == {"true_T.json"}
+    assert "truths" not in one.to_dict()
+
+
+def test_compare_draws_one_truth_per_run_across_the_prior():
+    """By default `compare` hides a size per run, run r's from bin r of the prior, the same
+    for every agent (paired), each judged against its own truth's T*."""
+    from coordinator.cli import build_parser
+    from coordinator.commands.experiment import spec_from_args
+
+    spec = spec_from_args(build_parser().parse_args(["experiment", "compare", "--runs", "5", "--seed", "2"]))
+    assert len(spec.truths) == 5 and spec.to_dict()["truths"] == list(spec.truths)
+    for r, t in enumerate(spec.truths):
+        assert 0.030 + r * 0.006 <= t <= 0.030 + (r + 1) * 0.006
+        assert {ex.run_config(spec, k, r).true_size for k in range(len(spec.settings))} == {t}
+    files = ex.t_star_files(spec)
+    assert len({name for name, _ in files.values()}) == 5
+    assert all(files[(s.key, r)][1]["true_size"] == spec.truths[r]
+               for s in spec.settings for r in range(5))
+    again = spec_from_args(build_parser().parse_args(["experiment", "compare", "--runs", "5", "--seed", "2"]))
+    other = spec_from_args(build_parser().parse_args(["experiment", "compare", "--runs", "5", "--seed", "3"]))
+    assert again.truths == spec.truths != other.truths
 
 
 def test_judging_a_run_against_its_optimum():
