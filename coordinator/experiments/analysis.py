@@ -28,15 +28,15 @@ def posterior_error(posterior: dict, config: dict) -> float:
     return abs(posterior["size_mean"] - config["true_size"])
 
 
-def table_rows(spec: Spec, out: Path, judge: Callable[[int, int], Optimality]) -> tuple[list[dict], dict]:
+def table_rows(spec: Spec, out: Path, judge_of: Callable[[int, int], Optimality]) -> tuple[list[dict], dict]:
     """CSV rows (setting order, run, episode) and the per-setting arrays for the summary;
-    `judge(k, r)` is the Optimality of run r of setting k (its truth's T*)."""
+    `judge_of(k, r)` is the Optimality of run r of setting k (its truth's T*)."""
     rows, arrays = [], {}
     for k, s in enumerate(spec.settings):
         per = {"utility": [], "size_err": [], "optimal": [], "successes": [], "actions": [],
                "wall_s": [], "density_err": [], "density_std": [], "particle_actions": []}
         for r in range(spec.runs):
-            optimal = judge(k, r)
+            optimal = judge_of(k, r)
             data = json.loads(run_path(out, s, r).read_text())
             cfg = data["config"]
             eps = data["episodes"]
@@ -125,7 +125,7 @@ def _nan_mean(a) -> float | None:
     return None if a.size == 0 or np.all(np.isnan(a)) else float(np.nanmean(a))
 
 
-def summarize(spec: Spec, arrays: dict, judge: Callable[[int, int], Optimality]) -> dict:
+def summarize(spec: Spec, arrays: dict, judge_of: Callable[[int, int], Optimality]) -> dict:
     """The experiment's summary (DIR/NAME.json): per setting the final level, convergence,
     posterior error, optimal plans and successful actions, with the definitions used."""
     E = spec.episodes
@@ -170,9 +170,9 @@ def summarize(spec: Spec, arrays: dict, judge: Callable[[int, int], Optimality])
     summary = {
         "experiment": spec.name, "spec": spec.to_dict(), "settings": settings,
         "optimum_under_true_T": (
-            [{"true_size": spec.truths[r], "loads": judge(0, r).best_loads,
-              "expected_utility": judge(0, r).best_value} for r in range(spec.runs)] if spec.truths
-            else {"loads": judge(0, 0).best_loads, "expected_utility": judge(0, 0).best_value}),
+            [{"true_size": spec.truths[r], "loads": judge_of(0, r).best_loads,
+              "expected_utility": judge_of(0, r).best_value} for r in range(spec.runs)] if spec.truths
+            else {"loads": judge_of(0, 0).best_loads, "expected_utility": judge_of(0, 0).best_value}),
         "definitions": {
             "episode": "1-based",
             "last_fifth": f"the last {tail} of {E} episodes (ceil(E / 5))",
