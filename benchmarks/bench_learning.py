@@ -12,6 +12,8 @@ of at least 90 %.
     python benchmarks/bench_learning.py --domains container --out runs/bl
     python benchmarks/bench_learning.py --scale paper            # the whole grid, 3 seeds, 8 episodes
     python benchmarks/bench_learning.py --before runs/bl-old     # side by side with an earlier sweep
+    python benchmarks/bench_learning.py --rejudge runs/bl-old --t-star-from runs/bl
+        # an earlier sweep's runs judged again against another sweep's T* caches (no run)
 
 Each domain's runs, T* caches and sweep.{md,json,csv,png} go to OUT/<domain>/; a run that
 is there with the same settings is reused with --resume.
@@ -64,7 +66,13 @@ def main(argv=None) -> int:
     ap.add_argument("--out", default="runs/bench_learning")
     ap.add_argument("--resume", action="store_true")
     ap.add_argument("--before", default=None, metavar="DIR", help="an earlier OUT to compare with")
+    ap.add_argument("--rejudge", default=None, metavar="DIR",
+                    help="write DIR's sweep files again from its run files (no run) ...")
+    ap.add_argument("--t-star-from", default=None, metavar="DIR",
+                    help="... with the T* caches of this sweep (default: DIR's own)")
     args = ap.parse_args(argv)
+    if args.rejudge:
+        return rejudge(args)
     init_ray(None)
     out = Path(args.out)
     combined = {}
@@ -88,6 +96,27 @@ def main(argv=None) -> int:
             line += "\n  before" + "".join(f" | {_fmt(b[k])}" for k in SUMMARY_KEYS) + \
                 f" | {len(b['not_improving'])}"
         print(line)
+    return 0
+
+
+def rejudge(args) -> int:
+    """Judge an earlier sweep's runs against T* caches (its own or another sweep's), so that
+    a before/after comparison uses one reference."""
+    from coordinator.experiments.sweep import write_sweep
+    from coordinator.experiments.true_T import cached_true_T, t_star_files
+
+    for domain in [d.strip() for d in args.domains.split(",") if d.strip()]:
+        spec = spec_from_args(sweep_args(domain, args))
+        out = Path(args.rejudge) / domain
+        source = Path(args.t_star_from) / domain if args.t_star_from else out
+        t_stars = {}
+        for name, params in dict(t_star_files(spec).values()).items():
+            t_stars[name] = cached_true_T(source, params, name)
+            if t_stars[name] is None:
+                raise SystemExit(f"bench_learning: no T* {name} in {source} for these settings")
+        done = write_sweep(spec, out, t_stars)
+        print(f"## {domain} (rejudged against {source})\n")
+        print(Path(done["md"]).read_text())
     return 0
 
 

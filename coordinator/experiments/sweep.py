@@ -8,7 +8,8 @@ domain that can put the density in L, a size x density x wrist-sensor grid. Ever
 gets T* from probes at that truth (``Setting.t_star``), so "optimal" means optimal for the
 objects the robot is really handling.
 
-Per run: utility per episode against the expected utility of the optimum under T*,
+Per run: utility per episode against the expected utility of the optimum under T* (plus
+the all-delivered bonus, which the planner's figure leaves out and an episode's includes),
 regret over the last half of the episodes, the episode from which it stays within
 ``NEAR_OPTIMUM`` of the optimum, failures and transit fallbacks per episode, and every
 property's posterior error in units of its std. Summary: the share of truths within
@@ -151,8 +152,10 @@ def sweep_rows(spec: Spec, out: Path, t_stars: dict) -> list[dict]:
     for s in spec.settings:
         for r in range(spec.runs):
             t_star = t_stars[files[(s.key, r)][0]]
+            # The planner's expected utility leaves out the all-delivered bonus (every
+            # complete plan earns it alike); an episode's utility includes it.
             optimum = Optimality(t_star["transition"], costs, t_star["params"]["n_blocks"],
-                                 spec.domain).best_value
+                                 spec.domain).best_value + costs.get("all_delivered", 0.0)
             data = json.loads(run_path(out, s, r).read_text())
             row = {"domain": spec.domain, "case": s.label, "key": s.key, "run": r, "seed": data["seed"],
                    "true_size": data["config"]["true_size"], "t_star": t_star["transition"]}
