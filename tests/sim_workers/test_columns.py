@@ -89,6 +89,17 @@ def test_the_vectorised_rule_is_one_per_hypothesis():
     np.testing.assert_array_equal(columns.two_columns(SPEC, rows), [True, False, False])
 
 
+def test_pose_classes_are_the_stack_layout_per_row():
+    domain = load("container")
+    config = sm.initial_configuration(SPEC, np.full(N, 0.045))
+    shared = np.array([[0.040], [0.048], [0.049], [0.060]])
+    np.testing.assert_array_equal(domain.pose_classes(shared, config, "stack(r,b2,c)"), [1, 1, 0, 0])
+    per_block = np.array([np.full(N, 0.040), np.r_[0.054, np.full(N - 1, 0.040)]])
+    np.testing.assert_array_equal(domain.pose_classes(per_block, config, "stack(r,b2,c)"), [1, 0])
+    for action in ("pickup(r,b2,init)", "push(r,c,init,goal)"):     # no discrete choice
+        np.testing.assert_array_equal(domain.pose_classes(shared, config, action), [0, 0, 0, 0])
+
+
 # -- Y: a feasible placement for every L -----------------------------------------------------
 @pytest.mark.parametrize("h", range(len(hypotheses())))
 def test_every_stacked_block_lies_inside_the_tray_and_apart(h):
