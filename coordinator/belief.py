@@ -437,6 +437,27 @@ def mode_mask(particles: np.ndarray, weights: np.ndarray, bandwidth: float,
     return d2[best] <= (2.0 * bandwidth) ** 2
 
 
+def heaviest_class(classes: np.ndarray, weights: np.ndarray, keep: np.ndarray) -> np.ndarray:
+    """`keep` narrowed to the class holding most of the kept particles' weight (ties: the
+    smallest label); `keep` itself when the kept particles share one class.
+
+    A class is a discrete choice Y made for a particle (the container's tray layout, one
+    column or two): particles close in L can still get poses far apart across such a
+    switch, and their weighted mean is neither pose.
+
+    >>> heaviest_class(np.array([1, 1, 0, 0]), np.array([0.1, 0.1, 0.3, 0.5]),
+    ...                np.array([True, True, True, False])).tolist()
+    [False, False, True, False]
+    """
+    classes = np.asarray(classes)
+    labels = np.unique(classes[keep])
+    if len(labels) < 2:
+        return keep
+    w = np.asarray(weights, dtype=np.float64)
+    mass = [float(w[keep & (classes == label)].sum()) for label in labels]
+    return keep & (classes == labels[int(np.argmax(mass))])
+
+
 # Up to this many particles the density is evaluated at every particle (N^2 kernel terms:
 # 28 us per particle per action at N = 1000, 190 at 5000, measured); above it at this many
 # candidates drawn by weight, M x N terms, linear in N and in any dimension of L. Every

@@ -23,7 +23,7 @@ from sim_workers.properties import SIZES_VARIATION_SCALE
 from sim_workers.trajectory import columns_of
 
 from .agents import agent_spec
-from .belief import Belief, gaussian_log_likelihood, mode_mask, symbolic_log_likelihood
+from .belief import Belief, gaussian_log_likelihood, heaviest_class, mode_mask, symbolic_log_likelihood
 from .domains import load as load_domain, property_space
 from .episode import EpisodeStats, utility_terms
 from .experience import ExperiencePool
@@ -182,6 +182,7 @@ class Session:
                 return self.belief.weighted_mean(poses, angular=(3,)), poses
             keep = mode_mask(self.belief.particles, self.belief.weights, self.config.mode_bandwidth,
                              scale=self._mode_scale())
+            keep = self._one_pose_class(keep, config, action)
             sub = Belief(self.belief.particles[keep], self.belief.log_weights[keep],
                          self.belief.low, self.belief.high)
             return sub.weighted_mean(poses[keep], angular=(3,)), poses
@@ -193,6 +194,14 @@ class Session:
                 s = self.rng.uniform(low, high)
             return self.domain.action_pose(self._props(s), config, action), None
         return self.domain.action_pose(self._props(self.believed_row()), config, action), None
+
+    def _one_pose_class(self, keep: np.ndarray, config: Configuration, action: str) -> np.ndarray:
+        """The mode's particles of one pose class (the domain's optional ``pose_classes``:
+        a discrete choice of Y per row of L, such as the container's tray layout)."""
+        classes = getattr(self.domain, "pose_classes", None)
+        if classes is None:
+            return keep
+        return heaviest_class(classes(self.belief.particles, config, action), self.belief.weights, keep)
 
     def _mode_scale(self) -> np.ndarray:
         """Per-dimension scale for the pose mode: each property's prior width over the

@@ -8,7 +8,7 @@ import numpy as np
 
 from ..configuration import Configuration
 from ..properties import MAX_DENSITY, MIN_DENSITY, SIZES_VARIATION_SCALE, PropertyError, block_properties
-from . import probes, scene, state_mapping, trajectories
+from . import columns, probes, scene, state_mapping, trajectories
 from .spec import ContainerSpec
 
 
@@ -103,13 +103,28 @@ class ContainerDomain:
     def action_pose(self, props: dict, config: Configuration, action: str) -> np.ndarray:
         return state_mapping.action_pose(self.spec, self.properties(props)["block_sizes"], config, action)
 
+    def _row_sizes(self, rows: np.ndarray) -> np.ndarray:
+        """(N, D) rows of L as (N, n_blocks) sizes: one shared size broadcast to every block."""
+        rows = np.asarray(rows, dtype=np.float64)
+        return np.broadcast_to(rows, (len(rows), self.spec.n_blocks)) if rows.shape[1] == 1 else rows
+
     def action_poses(self, rows: np.ndarray, config: Configuration, action: str) -> np.ndarray:
         """Y for every row of L at once ((N, D) -> (N, 5)), bit for bit the per-row Y."""
-        rows = np.asarray(rows, dtype=np.float64)
-        sizes = np.broadcast_to(rows, (len(rows), self.spec.n_blocks)) if rows.shape[1] == 1 else rows
+        sizes = self._row_sizes(rows)
         self.properties({"block_sizes": sizes.min(axis=0)})       # validation, as per row
         self.properties({"block_sizes": sizes.max(axis=0)})
         return state_mapping.action_poses(self.spec, sizes, config, action)
+
+    def pose_classes(self, rows: np.ndarray, config: Configuration, action: str) -> np.ndarray:
+        """The discrete choice Y makes for each row of L ((N, D) -> (N,) ints): for a stack
+        the tray's layout (1: two columns, 0: one), for other actions none (all 0). The
+        coordinator averages the real pose over one class: the mean of a one-column and a
+        two-column placement lands on neither column."""
+        name, _ = state_mapping.parse_action(action)
+        sizes = self._row_sizes(rows)
+        if name != "stack":
+            return np.zeros(len(sizes), dtype=np.int64)
+        return np.asarray(columns.two_columns(self.spec, sizes), dtype=np.int64)
 
     def action_trajectory(self, config: Configuration, action: str, key: np.ndarray,
                           transit: np.ndarray | None = None) -> np.ndarray:

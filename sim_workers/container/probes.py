@@ -7,21 +7,25 @@ import numpy as np
 from ..configuration import Configuration, quat_from_yaw
 from ..grounded_world import GroundedWorld, act
 from ..reality_gap import PLACEMENT_JITTER_M, YAW_JITTER_RAD, jitter_planar
+from .columns import column_x, two_columns
 
 PROBE_ACTIONS = ("pickup", "stack", "push")
 
 
 def loaded_configuration(domain, sizes: np.ndarray, load_k: int, rng: np.random.Generator) -> Configuration:
-    """The first `load_k` blocks piled in the container, two side by side per layer."""
+    """The first `load_k` blocks piled in the container as Y piles them: two side by side
+    per layer, or one column when the blocks do not fit in half the tray (``columns``)."""
     spec = domain.spec
     config = domain.initial_configuration({"block_sizes": sizes})
     objects = jitter_planar(rng, config.objects, range(1, 1 + spec.n_blocks))
     c = objects[0, :2]
+    two = two_columns(spec, sizes)
+    per_layer = 2 if two else 1
     for i in range(load_k):
         s = sizes[i]
-        lx = (1 if i % 2 else -1) * (s / 2 + spec.slot_gap / 2)
+        lx = column_x(spec, s, i % per_layer, two)
         # Heights only order the pile (place() re-stacks each column from the floor).
-        z = spec.floor_top + (i // 2 + 0.5) * s
+        z = spec.floor_top + (i // per_layer + 0.5) * s
         objects[1 + i, :3] = [c[0] + lx + rng.normal(0, PLACEMENT_JITTER_M / 2),
                               c[1] + rng.normal(0, PLACEMENT_JITTER_M / 2), z]
         objects[1 + i, 3:] = quat_from_yaw(rng.uniform(-YAW_JITTER_RAD, YAW_JITTER_RAD))

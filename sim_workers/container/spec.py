@@ -23,7 +23,8 @@ class ContainerSpec:
     container_init: tuple[float, float] = (0.0, 0.0)
     container_goal: tuple[float, float] = (0.6, 0.0)
     delivered_x: float = 0.95       # the helper unloads delivered blocks into a row here
-    # The open container (tray): inner footprint takes two blocks side by side along x.
+    # The open container (tray): its inner footprint takes two blocks side by side along x
+    # up to 48.5 mm (inner_half[0] - slot_gap / 2), larger ones in one column (columns.py).
     inner_half: tuple[float, float] = (0.050, 0.036)
     wall_thickness: float = 0.006
     wall_height: float = 0.035      # above the floor

@@ -5,7 +5,8 @@ action to the action's key pose (x, y, z, yaw, opening). Y^-1 (``symbolic_state`
 configuration to ground atoms. The same code serves the real world and every particle, so
 their outcomes are comparable. ``place_for_sizes`` re-grounds an observed configuration
 under one hypothesis L_i (heights follow from each particle's own sizes, since the
-observation fixes only where things are, not how big they are).
+observation fixes only where things are, not how big they are). Where blocks pile in the
+tray, one column or two, is ``columns``' layout of the same hypothesis.
 """
 from __future__ import annotations
 
@@ -13,6 +14,7 @@ import numpy as np
 
 from ..configuration import Configuration, face_yaw, quat_from_yaw, rotate_z, yaw_of
 from ..terms import block_index, parse_action  # noqa: F401  (used as state_mapping.*)
+from .columns import LEFT, column_of, column_x, side_of, tallest_pile, two_columns
 from .spec import ContainerSpec
 
 # Labels of where a block is; Y^-1 turns them into atoms.
@@ -49,9 +51,10 @@ def _in_container(spec: ContainerSpec, config: Configuration, p: np.ndarray) -> 
     c = config.objects[0]
     local = rotate_z(p[:2] - c[:2], -yaw_of(c[3:]))
     ix, iy = spec.inner_half
-    # Nothing above the tallest possible pile (n blocks of the largest prior size in two
-    # columns) is in the container, e.g. a block carried over it.
-    top = c[2] + spec.floor_top + spec.prior_high * ((spec.n_blocks + 1) // 2) + spec.CONTAINER_TOP_MARGIN
+    # Nothing above the tallest pile Y can build (every block of the largest prior size, in
+    # the columns that size gets) is in the container, e.g. a block carried over it. Y^-1
+    # knows no hypothesis, so the cap covers them all.
+    top = c[2] + spec.floor_top + tallest_pile(spec) + spec.CONTAINER_TOP_MARGIN
     margin = spec.CONTAINER_XY_MARGIN
     return abs(local[0]) < ix + margin and abs(local[1]) < iy + margin and c[2] < p[2] < top
 
@@ -100,11 +103,6 @@ def _grasp_yaw(quat: np.ndarray) -> float:
     return float((yaw + np.pi / 4) % (np.pi / 2) - np.pi / 4)
 
 
-def _column_of(spec: ContainerSpec, config: Configuration, p: np.ndarray) -> int:
-    c = config.objects[0]
-    return int(rotate_z(p[:2] - c[:2], -yaw_of(c[3:]))[0] > 0)
-
-
 def action_pose(spec: ContainerSpec, sizes: np.ndarray, config: Configuration, action: str) -> np.ndarray:
     """Y(L, s, a): the key pose (x, y, z, yaw, opening) of `action` under believed sizes."""
     name, args = parse_action(action)
@@ -119,13 +117,14 @@ def action_pose(spec: ContainerSpec, sizes: np.ndarray, config: Configuration, a
         c = config.objects[0]
         cyaw = yaw_of(c[3:])
         labels = block_labels(spec, config)
+        two = two_columns(spec, sizes)
         heights = [spec.floor_top, spec.floor_top]
         for j, label in enumerate(labels):
             if label == CONTAINER:
-                heights[_column_of(spec, config, config.objects[1 + j, :3])] += sizes[j]
-        col = int(np.argmin(heights))          # the lower column; ties go left
+                heights[column_of(config, config.objects[1 + j, :3], two)] += sizes[j]
+        col = int(np.argmin(heights)) if two else LEFT   # the lower column; ties go left
         s = sizes[i]
-        lx = (1 if col else -1) * (s / 2 + spec.slot_gap / 2)
+        lx = column_x(spec, s, col, two)
         xy = c[:2] + rotate_z(np.array([lx, 0.0]), cyaw)
         z = heights[col] + spec.release_clearance + (s - spec.grip_depth)
         return np.array([xy[0], xy[1], z, cyaw, spec.open_ratio * s])
@@ -159,18 +158,21 @@ def action_poses(spec: ContainerSpec, sizes: np.ndarray, config: Configuration, 
         c = config.objects[0]
         cyaw = yaw_of(c[3:])
         labels = block_labels(spec, config)
+        two = two_columns(spec, sizes)                   # (n,): each hypothesis its layout
+        rows = np.arange(n)
         heights = np.full((n, 2), spec.floor_top)
         for j, label in enumerate(labels):
             if label == CONTAINER:
-                heights[:, _column_of(spec, config, config.objects[1 + j, :3])] += sizes[:, j]
-        col = np.argmin(heights, axis=1)       # the lower column; ties go left
+                side = side_of(config, config.objects[1 + j, :3])
+                heights[rows, np.where(two, side, LEFT)] += sizes[:, j]
+        col = np.where(two, np.argmin(heights, axis=1), LEFT)   # the lower column; ties go left
         s = sizes[:, i]
-        lx = np.where(col == 1, 1.0, -1.0) * (s / 2 + spec.slot_gap / 2)
+        lx = column_x(spec, s, col, two)
         cos, sin = np.cos(cyaw), np.sin(cyaw)
         out = np.empty((n, 5))
         out[:, 0] = c[0] + (cos * lx - sin * 0.0)
         out[:, 1] = c[1] + (sin * lx + cos * 0.0)
-        out[:, 2] = heights[np.arange(n), col] + spec.release_clearance + (s - spec.grip_depth)
+        out[:, 2] = heights[rows, col] + spec.release_clearance + (s - spec.grip_depth)
         out[:, 3] = cyaw
         out[:, 4] = spec.open_ratio * s
         return out
@@ -185,13 +187,26 @@ def push_end_x(spec: ContainerSpec, config: Configuration, action: str, key: np.
     return float(key[0] + (target[0] - c[0]))
 
 
+def _x_in_column(spec: ContainerSpec, local_x: float, s: float, col: int, two: bool) -> float:
+    """An observed tray-frame x re-grounded in a column, inside the walls: on the column's
+    side of the centre line with two columns; as seen (the pile's offsets are part of the
+    observation) with one."""
+    ix = spec.inner_half[0]
+    if not two:
+        half = max(ix - s / 2, 0.0)
+        return np.clip(local_x, -half, half)
+    lx = np.clip(abs(local_x), s / 2, max(ix - s / 2, s / 2))
+    return lx if col else -lx
+
+
 def place_for_sizes(spec: ContainerSpec, config: Configuration, sizes: np.ndarray) -> Configuration:
     """Re-ground an observed configuration under one hypothesis of the block sizes.
 
     Planar poses (x, y, yaw) come from the observation; heights come from the hypothesis:
     a block on the table rests on it, a block in the container rests on the ones below it
-    in its column (order by observed height), a held block stays where it was seen and the
-    fingers close on its hypothesised width. Blocks are set upright (cubes at rest).
+    in its column of the hypothesis' layout (``columns``: one or two; order by observed
+    height), a held block stays where it was seen and the fingers close on its
+    hypothesised width. Blocks are set upright (cubes at rest).
     """
     labels = block_labels(spec, config)
     objects = config.objects.copy()
@@ -199,13 +214,14 @@ def place_for_sizes(spec: ContainerSpec, config: Configuration, sizes: np.ndarra
     c = objects[0]
     cyaw = yaw_of(c[3:])
     objects[0] = np.concatenate([[c[0], c[1], 0.0], quat_from_yaw(cyaw)])
-    ix, iy = spec.inner_half
+    iy = spec.inner_half[1]
+    two = two_columns(spec, sizes)
     columns: dict[int, list[int]] = {0: [], 1: []}
     for i, label in enumerate(labels):
         p = config.objects[1 + i]
         s = sizes[i]
         if label == CONTAINER:
-            columns[_column_of(spec, config, p[:3])].append(i)
+            columns[column_of(config, p[:3], two)].append(i)
         elif label == HELD:
             objects[1 + i] = np.concatenate([p[:3], quat_from_yaw(robot[3])])
             robot[4] = s
@@ -220,8 +236,7 @@ def place_for_sizes(spec: ContainerSpec, config: Configuration, sizes: np.ndarra
         for j in members:
             s = sizes[j]
             local = rotate_z(config.objects[1 + j, :2] - c[:2], -cyaw)
-            lx = np.clip(abs(local[0]), s / 2, max(ix - s / 2, s / 2))
-            lx = lx if col else -lx
+            lx = _x_in_column(spec, local[0], s, col, two)
             ly = np.clip(local[1], -max(iy - s / 2, 0.0), max(iy - s / 2, 0.0))
             xy = c[:2] + rotate_z(np.array([lx, ly]), cyaw)
             objects[1 + j] = np.concatenate([[xy[0], xy[1], z + s / 2], quat_from_yaw(cyaw)])

@@ -262,6 +262,21 @@ def test_mode_mask_shortcut_agrees_with_the_full_density():
     assert keep.sum() == 70 and np.all(keep[30:])
 
 
+def test_heaviest_class_keeps_one_class_of_the_mode():
+    """Particles of the mode on both sides of a switch in Y: only the heavier side is
+    averaged; a mode of one class comes back as it was (the same array)."""
+    from coordinator.belief import heaviest_class
+    classes = np.array([1, 1, 0, 0, 0])
+    keep = np.array([True, True, True, True, False])
+    w = np.array([0.3, 0.3, 0.1, 0.1, 0.2])          # the dropped particle's weight does not count
+    assert heaviest_class(classes, w, keep).tolist() == [True, True, False, False, False]
+    assert heaviest_class(classes, w[::-1], keep).tolist() == [False, False, True, True, False]
+    one = np.array([True, True, False, False, False])
+    assert heaviest_class(classes, w, one) is one
+    # a tie goes to the smallest label, whatever the order
+    assert heaviest_class(np.array([2, 0]), np.array([0.5, 0.5]), np.array([True, True])).tolist() == [False, True]
+
+
 @pytest.mark.parametrize("dim", [1, 2, 16])
 def test_mode_above_the_exact_limit_keeps_the_exact_mode(dim):
     """Above MODE_EXACT_MAX particles the density is evaluated at candidates drawn by
