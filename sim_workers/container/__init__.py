@@ -6,6 +6,7 @@ import re
 
 import numpy as np
 
+from .. import obstacles
 from ..configuration import Configuration
 from ..properties import MAX_DENSITY, MIN_DENSITY, SIZES_VARIATION_SCALE, PropertyError, block_properties
 from . import probes, scene, state_mapping, trajectories
@@ -122,28 +123,27 @@ class ContainerDomain:
     def gripper_box(self, held_size: float = 0.0) -> tuple[np.ndarray, float]:
         """(half extents, z offset of its centre above the fingertips) of a box around the
         gripper: fingers at their widest and the palm, plus a held block hanging below."""
-        fx, fy, fz = self.spec.finger_half
-        top = self.spec.palm_offset + self.spec.palm_half[2]
-        half = np.array([fx + 0.001, self.spec.max_opening / 2 + 2 * fy, (top + held_size) / 2])
-        return half, (top - held_size) / 2
+        sp = self.spec
+        return obstacles.gripper_box(sp.palm_half, sp.finger_half, sp.palm_offset, sp.max_opening, held_size)
 
     def default_transit(self, start: np.ndarray, pre: np.ndarray) -> np.ndarray:
         """Up, across at a safe height, down: (M, 5) waypoints."""
         return trajectories.default_transit(self.spec, start, pre)
 
-    def obstacles(self, config: Configuration, size: float) -> list[tuple[np.ndarray, np.ndarray]]:
+    def obstacles(self, config: Configuration, size) -> list[tuple[np.ndarray, np.ndarray]]:
         """Axis-aligned boxes (centre, half extents) around the container and every block
-        not in the hand, for the motion planner's geometric collision check."""
+        not in the hand, for the motion planner's geometric collision check; `size` is the
+        believed block size, one for all or one per block."""
         labels = state_mapping.block_labels(self.spec, config)
-        c = config.objects[0]
+        sizes = obstacles.per_block(size, self.spec.n_blocks)
         ox, oy = self.spec.outer_half
         top = self.spec.floor_thickness + self.spec.wall_height
-        boxes = [(np.array([c[0], c[1], top / 2]), np.array([ox, oy, top / 2]))]
+        boxes = [obstacles.body_box(config.objects[0], (ox, oy, top / 2), (0.0, 0.0, top / 2))]
         for i, label in enumerate(labels):
             if label not in (state_mapping.HELD, state_mapping.GOAL):
-                p = config.objects[1 + i, :3]
-                # s / sqrt(2) in x and y holds a cube of side s at any yaw.
-                boxes.append((p.copy(), np.array([0.71 * size, 0.71 * size, 0.5 * size])))
+                # At its observed orientation: columns side by side in the tray are a few
+                # mm apart, and a held block goes down beside the other column.
+                boxes.append(obstacles.cube_box(config.objects[1 + i], sizes[i]))
         return boxes
 
     def pre_pose(self, config: Configuration, action: str, key: np.ndarray) -> np.ndarray:
