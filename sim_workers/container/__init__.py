@@ -6,8 +6,8 @@ import re
 
 import numpy as np
 
-from .. import obstacles
 from ..configuration import Configuration
+from ..obstacles import Box, body_box, cube_box, hand_box, per_block
 from ..properties import MAX_DENSITY, MIN_DENSITY, SIZES_VARIATION_SCALE, PropertyError, block_properties
 from . import probes, scene, state_mapping, trajectories
 from .spec import ContainerSpec
@@ -122,28 +122,28 @@ class ContainerDomain:
 
     def gripper_box(self, held_size: float = 0.0) -> tuple[np.ndarray, float]:
         """(half extents, z offset of its centre above the fingertips) of a box around the
-        gripper: fingers at their widest and the palm, plus a held block hanging below."""
+        gripper: fingers at their widest and the palm, plus a held block as Y grasps it."""
         sp = self.spec
-        return obstacles.gripper_box(sp.palm_half, sp.finger_half, sp.palm_offset, sp.max_opening, held_size)
+        return hand_box(sp.palm_half, sp.finger_half, sp.palm_offset, sp.max_opening, held_size, sp.grip_depth)
 
     def default_transit(self, start: np.ndarray, pre: np.ndarray) -> np.ndarray:
         """Up, across at a safe height, down: (M, 5) waypoints."""
         return trajectories.default_transit(self.spec, start, pre)
 
-    def obstacles(self, config: Configuration, size) -> list[tuple[np.ndarray, np.ndarray]]:
-        """Axis-aligned boxes (centre, half extents) around the container and every block
+    def obstacles(self, config: Configuration, size) -> list[Box]:
+        """Boxes (centre, half extents, rotation) of the container and every block
         not in the hand, for the motion planner's geometric collision check; `size` is the
         believed block size, one for all or one per block."""
         labels = state_mapping.block_labels(self.spec, config)
-        sizes = obstacles.per_block(size, self.spec.n_blocks)
+        sizes = per_block(size, self.spec.n_blocks)
         ox, oy = self.spec.outer_half
         top = self.spec.floor_thickness + self.spec.wall_height
-        boxes = [obstacles.body_box(config.objects[0], (ox, oy, top / 2), (0.0, 0.0, top / 2))]
+        boxes = [body_box(config.objects[0], (ox, oy, top / 2), (0.0, 0.0, top / 2))]
         for i, label in enumerate(labels):
             if label not in (state_mapping.HELD, state_mapping.GOAL):
-                # At its observed orientation: columns side by side in the tray are a few
-                # mm apart, and a held block goes down beside the other column.
-                boxes.append(obstacles.cube_box(config.objects[1 + i], sizes[i]))
+                # As it lies: columns side by side in the tray are 3 mm apart, and a
+                # held block goes down beside the other column or a leaning block.
+                boxes.append(cube_box(config.objects[1 + i], sizes[i]))
         return boxes
 
     def pre_pose(self, config: Configuration, action: str, key: np.ndarray) -> np.ndarray:

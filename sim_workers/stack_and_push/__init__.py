@@ -9,8 +9,8 @@ import numpy as np
 
 from ..configuration import Configuration, Workspace
 from ..container.scene import GRIPPER_MASS
+from ..obstacles import Box, cube_box, hand_box, per_block
 from ..properties import MAX_DENSITY, MIN_DENSITY, SIZES_VARIATION_SCALE, PropertyError, PropertySpace, block_properties
-from .. import obstacles
 from . import efforts, probes, scene, state_mapping, trajectories
 from .spec import StackAndPushSpec
 
@@ -215,30 +215,29 @@ class StackAndPushDomain:
 
     def gripper_box(self, held_size: float = 0.0) -> tuple[np.ndarray, float]:
         """(half extents, z offset of its centre above the fingertips) of a box around the
-        gripper: fingers at their widest and the palm, plus a held block hanging below."""
+        gripper: fingers at their widest and the palm, plus a held block as Y grasps it."""
         sp = self.spec
-        return obstacles.gripper_box(sp.palm_half, sp.finger_half, sp.palm_offset, sp.max_opening, held_size)
+        return hand_box(sp.palm_half, sp.finger_half, sp.palm_offset, sp.max_opening, held_size, sp.grip_depth)
 
     def default_transit(self, start: np.ndarray, pre: np.ndarray) -> np.ndarray:
         """Up, across at a safe height, down: (M, 5) waypoints."""
         return trajectories.default_transit(self.spec, start, pre)
 
-    def obstacles(self, config: Configuration, size) -> list[tuple[np.ndarray, np.ndarray]]:
-        """Axis-aligned boxes (centre, half extents) around the rail walls and every block
+    def obstacles(self, config: Configuration, size) -> list[Box]:
+        """Boxes (centre, half extents, rotation) of the rail walls and every block
         not in the hand or delivered, for the motion planner's collision check; `size` is
         the believed block size, one for all or one per block."""
         spec = self.spec
         labels, _ = state_mapping.block_labels(spec, config)
-        sizes = obstacles.per_block(size, spec.n_blocks)
+        sizes = per_block(size, spec.n_blocks)
         x0, x1 = spec.rail_x
         yc = spec.rail_half_gap + spec.wall_thickness / 2
         wall = np.array([(x1 - x0) / 2, spec.wall_thickness / 2, spec.wall_height / 2])
-        boxes = [(np.array([(x0 + x1) / 2, s * yc, spec.wall_height / 2]), wall.copy()) for s in (-1, 1)]
+        boxes = [(np.array([(x0 + x1) / 2, s * yc, spec.wall_height / 2]), wall.copy(), np.eye(3)) for s in (-1, 1)]
         for i, label in enumerate(labels):
             if label not in (state_mapping.HELD, state_mapping.GOAL):
-                # At its observed orientation: the push's pre-pose is a few mm behind the
-                # tower's rear faces as Y sees them (turned cubes included).
-                boxes.append(obstacles.cube_box(config.objects[i], sizes[i]))
+                # As it lies: the push's pre-pose is 3 mm behind the tower's rear faces.
+                boxes.append(cube_box(config.objects[i], sizes[i]))
         return boxes
 
     def pre_pose(self, config: Configuration, action: str, key: np.ndarray) -> np.ndarray:

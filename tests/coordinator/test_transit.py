@@ -159,26 +159,29 @@ def test_the_push_of_a_tower_of_eight_has_a_checked_transit_free_in_the_scene(si
     assert _touches_scene(session.domain, config, np.full(8, size), approach, opening=pre[4]) == []
 
 
-def test_a_block_turned_by_45_degrees_is_an_obstacle_as_wide_as_it_is():
-    """A cube's box is its exact bounds at the observed yaw: s/2 square to the axes,
-    s/sqrt(2) turned by 45 degrees (the old any-yaw box was always the latter)."""
+def test_a_block_is_an_obstacle_as_it_lies():
+    """A block's box is the cube itself at its observed pose: turned by 45 degrees it
+    leaves free the corners of its bounds (the old any-yaw box, s/sqrt(2) each way, and
+    an axis-aligned one did not)."""
     from sim_workers.obstacles import cube_box
 
-    centre, half = cube_box(np.array([0.1, 0.2, 0.03, 0, 0, 0, 1.0]), 0.06)
-    np.testing.assert_allclose(centre, [0.1, 0.2, 0.03])
-    np.testing.assert_allclose(half, [0.03, 0.03, 0.03])
-    _, half = cube_box(np.array([0, 0, 0.03, *quat_from_yaw(np.pi / 4)]), 0.06)
-    np.testing.assert_allclose(half, [0.03 * np.sqrt(2), 0.03 * np.sqrt(2), 0.03])
+    turned = cube_box(np.array([0.1, 0.2, 0.03, *quat_from_yaw(np.pi / 4)]), 0.06)
+    np.testing.assert_allclose(turned[0], [0.1, 0.2, 0.03])
+    np.testing.assert_allclose(turned[1], [0.03, 0.03, 0.03])
+    corner = np.array([0.1 + 0.036, 0.2 + 0.036, 0.03, 0.0])     # inside the bounds, off the cube
+    assert box_checker([turned], gripper_radius=0.005)(corner)
+    assert not box_checker([turned], gripper_radius=0.005)(np.array([0.13, 0.2, 0.03, 0.0]))
 
 
 def test_a_held_block_widens_the_gripper_box_to_its_own_width():
-    """A held 58 mm block sticks out 29 mm on both sides of the 24 mm fingers: the box the
-    check moves holds it, so a stack cannot pass its block through a neighbouring column."""
+    """A held 58 mm block sticks out 29 mm on both sides of the 24 mm fingers and hangs
+    48 mm below the fingertips (Y grips it 10 mm below its top): the box the check moves
+    holds it, so a stack cannot pass its block through a neighbouring column."""
     domain = _session_at(Configuration(np.zeros(5), np.zeros((9, 7)) + [0, 0, 0, 0, 0, 0, 1])).domain
     empty, _ = domain.gripper_box(0.0)
     held, dz = domain.gripper_box(0.058)
-    assert empty[0] < 0.029 < held[0]
-    assert held[2] - dz == pytest.approx(0.058)          # the box reaches the block's bottom
+    assert empty[0] < 0.029 < held[0] == pytest.approx(0.03)
+    assert held[2] - dz == pytest.approx(0.058 - domain.spec.grip_depth + 0.001)   # the block's bottom
 
 
 # -- a fallback's action is replayed from the trajectory's start ------------------------------
