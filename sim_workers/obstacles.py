@@ -1,11 +1,12 @@
 """What the motion planner's check moves and avoids, as boxes.
 
-The loop checks a transit with ``planner.motion.box_checker``: the gripper is one box
-turned by its yaw (:func:`hand_box`), every obstacle a box (centre, half extents,
-rotation). A domain's ``obstacles`` and ``gripper_box`` build those boxes from an observed configuration and
-believed sizes with the helpers here. Each box is the body itself as observed, turned or
-tipped as it lies (a box around it, wider than the body, would put real free space out of
-reach: a push's pre-pose 3 mm behind a tower, a stack's block beside a leaning one).
+The loop checks a transit with ``planner.motion.box_checker``: the gripper is a few boxes
+turned by its yaw (:func:`hand_boxes`: palm, fingers, held block), every obstacle a box
+(centre, half extents, rotation). A domain's ``obstacles`` and ``gripper_boxes`` build
+them from an observed configuration and believed sizes with the helpers here. Each box is
+the body itself as observed, turned or tipped as it lies: a box around it, wider than
+the body, would put real free space out of reach (a push's pre-pose 3 mm behind a tower,
+a held block beside a leaning one).
 """
 from __future__ import annotations
 
@@ -13,7 +14,7 @@ import numpy as np
 
 from .configuration import quat_to_matrix
 
-# Room added around the gripper's fingers and a held block: the tightest boxes touch what
+# Room added around the gripper's parts and a held block: the tightest boxes touch what
 # they stand for, and touching counts as collision.
 GRIPPER_MARGIN = 0.001      # m
 
@@ -33,18 +34,21 @@ def cube_box(pose: np.ndarray, size: float) -> Box:
     return body_box(pose, np.full(3, 0.5 * float(size)))
 
 
-def hand_box(palm_half, finger_half, palm_offset: float, max_opening: float,
-                held_size: float = 0.0, grip_depth: float = 0.0) -> tuple[np.ndarray, float]:
-    """(half extents, z of its centre above the fingertips) of one box around the gripper:
-    fingers at their widest and the palm, and a held block of side `held_size` (0: none)
-    between the fingers, its top `grip_depth` above the fingertips (Y's grasp), as wide
-    across them as it is."""
-    fx, fy, _ = finger_half
-    top = palm_offset + palm_half[2]
-    below = max(held_size - grip_depth, 0.0) + (GRIPPER_MARGIN if held_size > 0 else 0.0)
-    across = max(fx, 0.5 * held_size) + GRIPPER_MARGIN     # the block is gripped square
-    half = np.array([across, max_opening / 2 + 2 * fy, (top + below) / 2])
-    return half, (top - below) / 2
+def hand_boxes(palm_half, finger_half, palm_offset: float, opening: float,
+               held_size: float = 0.0, grip_depth: float = 0.0) -> list[tuple[np.ndarray, float]]:
+    """The gripper as the boxes the check moves, (half extents in its own frame, z of the
+    centre above the fingertips) each: the palm (wide along the fingers' opening, thin
+    across), the fingers `opening` apart, and a held block of side `held_size` (0: none)
+    between them, its top `grip_depth` above the fingertips (Y's grasp), gripped square."""
+    m = GRIPPER_MARGIN
+    fx, fy, fz = finger_half
+    palm = (np.array(palm_half, dtype=np.float64) + m, palm_offset)
+    fingers = (np.array([fx + m, opening / 2 + 2 * fy + m, fz + m / 2]), fz - m / 2)
+    if held_size <= 0:
+        return [palm, fingers]
+    hang = held_size - grip_depth + m                 # how far the block reaches below the tips
+    block = (np.array([held_size / 2 + m, held_size / 2 + m, (grip_depth + hang) / 2]), (grip_depth - hang) / 2)
+    return [palm, fingers, block]
 
 
 def per_block(size, n_blocks: int) -> np.ndarray:

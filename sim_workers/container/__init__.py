@@ -7,7 +7,7 @@ import re
 import numpy as np
 
 from ..configuration import Configuration
-from ..obstacles import Box, body_box, cube_box, hand_box, per_block
+from ..obstacles import Box, body_box, cube_box, hand_boxes, per_block
 from ..properties import MAX_DENSITY, MIN_DENSITY, SIZES_VARIATION_SCALE, PropertyError, block_properties
 from . import probes, scene, state_mapping, trajectories
 from .spec import ContainerSpec
@@ -120,11 +120,13 @@ class ContainerDomain:
                          transit: np.ndarray | None = None) -> float:
         return trajectories.transit_end_time(self.spec, config, action, key, transit)
 
-    def gripper_box(self, held_size: float = 0.0) -> tuple[np.ndarray, float]:
-        """(half extents, z offset of its centre above the fingertips) of a box around the
-        gripper: fingers at their widest and the palm, plus a held block as Y grasps it."""
+    def gripper_boxes(self, held_size: float = 0.0, opening: float | None = None) -> list[tuple[np.ndarray, float]]:
+        """(half extents, z offset of the centre above the fingertips) of the boxes of the
+        gripper: palm, fingers `opening` apart (default: their widest) and a held block as
+        Y grasps it."""
         sp = self.spec
-        return hand_box(sp.palm_half, sp.finger_half, sp.palm_offset, sp.max_opening, held_size, sp.grip_depth)
+        opening = sp.max_opening if opening is None else min(float(opening), sp.max_opening)
+        return hand_boxes(sp.palm_half, sp.finger_half, sp.palm_offset, opening, held_size, sp.grip_depth)
 
     def default_transit(self, start: np.ndarray, pre: np.ndarray) -> np.ndarray:
         """Up, across at a safe height, down: (M, 5) waypoints."""

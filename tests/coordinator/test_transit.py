@@ -8,6 +8,7 @@ import pytest
 from coordinator.reality import Observation
 from coordinator.run_config import RunConfig
 from coordinator.session import Session
+from coordinator.transit import transit_checker
 from planner.motion import box_checker, interpolate_config
 from sim_workers.configuration import Configuration, quat_from_yaw
 from sim_workers.grounded_world import GroundedWorld
@@ -22,15 +23,10 @@ def _session_at(config: Configuration) -> Session:
 
 
 def _dense_ok(session: Session, config: Configuration, path: np.ndarray) -> bool:
-    size = float(np.max(session.believed_sizes()))
-    half, dz = session.domain.gripper_box(0.0)
-    boxes = box_checker(session.domain.obstacles(config, size), gripper_half_extents=half)
-    for a, b in zip(path[:-1], path[1:]):
-        for t in np.linspace(0, 1, 50):
-            q = interpolate_config(a, b, t) + np.array([0, 0, dz, 0])
-            if not boxes(q):
-                return False
-    return True
+    """The loop's own check (empty hand, fingers at their widest) at 50 states a segment."""
+    free = transit_checker(session.domain, config, session.believed_sizes(), 0.0)
+    return all(free(interpolate_config(a, b, t)) for a, b in zip(path[:-1], path[1:])
+               for t in np.linspace(0, 1, 50))
 
 
 def test_transit_behind_a_full_pile_goes_over_it_not_through_it():
@@ -173,15 +169,18 @@ def test_a_block_is_an_obstacle_as_it_lies():
     assert not box_checker([turned], gripper_radius=0.005)(np.array([0.13, 0.2, 0.03, 0.0]))
 
 
-def test_a_held_block_widens_the_gripper_box_to_its_own_width():
-    """A held 58 mm block sticks out 29 mm on both sides of the 24 mm fingers and hangs
-    48 mm below the fingertips (Y grips it 10 mm below its top): the box the check moves
-    holds it, so a stack cannot pass its block through a neighbouring column."""
+def test_the_gripper_is_checked_as_palm_fingers_and_held_block():
+    """The boxes the check moves: the palm, the fingers as far apart as they are, and a
+    held 58 mm block, 29 mm out on both sides of the 24 mm fingers, hanging 48 mm below
+    the fingertips (Y grips it 10 mm below its top) and no wider than itself along them."""
     domain = _session_at(Configuration(np.zeros(5), np.zeros((9, 7)) + [0, 0, 0, 0, 0, 0, 1])).domain
-    empty, _ = domain.gripper_box(0.0)
-    held, dz = domain.gripper_box(0.058)
-    assert empty[0] < 0.029 < held[0] == pytest.approx(0.03)
-    assert held[2] - dz == pytest.approx(0.058 - domain.spec.grip_depth + 0.001)   # the block's bottom
+    palm, fingers = domain.gripper_boxes(0.0)
+    assert fingers[0][1] == pytest.approx(domain.spec.max_opening / 2 + 2 * domain.spec.finger_half[1] + 0.001)
+    assert palm[1] - palm[0][2] <= fingers[1] + fingers[0][2]       # no gap between palm and fingers
+    _, closed, block = domain.gripper_boxes(0.058, opening=0.058)
+    assert closed[0][1] == pytest.approx(0.029 + 2 * domain.spec.finger_half[1] + 0.001)
+    assert block[0][:2] == pytest.approx([0.03, 0.03])
+    assert block[0][2] - block[1] == pytest.approx(0.058 - domain.spec.grip_depth + 0.001)   # its bottom
 
 
 # -- a fallback's action is replayed from the trajectory's start ------------------------------
