@@ -7,6 +7,11 @@ from dataclasses import dataclass, field
 from .run_config import RunConfig
 
 
+# Appended to a transit fallback's note once the particle worlds replayed its action from
+# the trajectory's start (the unchecked transit included), not from the pre-pose.
+REPLAYED = "; particle worlds replayed it from the trajectory's start"
+
+
 @dataclass
 class EpisodeStats:
     """What one episode did so far: utility, actions, failures, loads, timings, particle
@@ -37,6 +42,11 @@ class EpisodeStats:
             self.loads.append(metrics["load"])
         self.delivered += metrics.get("delivered", 0)
         self.utility += reward
+
+    def replayed_fallback(self) -> None:
+        """The last transit fallback's action was simulated by the particle worlds from
+        the trajectory's start, transit included: its note says so."""
+        self.transit_fallbacks[-1] += REPLAYED
 
     def record(self, episode: int, posterior: dict, ess: float | None) -> dict:
         """The episode's record (JSON-able), given the posterior and ESS at its end."""

@@ -18,6 +18,7 @@ from typing import Iterator
 
 import numpy as np
 
+from planner.terms import parse_term
 from sim_workers.configuration import Configuration
 from sim_workers.properties import SIZES_VARIATION_SCALE
 from sim_workers.trajectory import columns_of
@@ -39,8 +40,9 @@ class PendingStep:
     pose: np.ndarray              # the real pose x (Y of the mode's particles; with mass in Y, + effort)
     trajectory: np.ndarray        # (T, 6) t, x, y, z, yaw, opening (+ grip_force, force_limit)
     expected: frozenset[str]      # the planned effect
-    transit_end: float            # when the free-space transit ends
+    transit_end: float            # where particle worlds start: the checked transit's end, or 0
     particle_poses: np.ndarray | None = None
+    unchecked_transit: bool = False   # a transit fallback: particle worlds replay it too
 
     def to_dict(self) -> dict:
         return {"action": self.action, "pose": self.pose.tolist(),
@@ -220,19 +222,28 @@ class Session:
 
     def _transit(self, config: Configuration, pre: np.ndarray) -> np.ndarray | None:
         """A collision-free path to the pre-pose among the observed obstacles
-        (``coordinator.transit``). None: every strategy failed, the action uses the
-        domain's default transit unchecked, and the episode record counts the fallback."""
+        (``coordinator.transit``) with the believed sizes. None: every strategy failed, the
+        action uses the domain's default transit unchecked, and the episode record counts
+        the fallback."""
         t0 = time.perf_counter()
         try:
-            size = float(np.max(self.believed_sizes()))
-            held = size if any(a.startswith("is_holding(") for a in self.state) else 0.0
-            plan = plan_pre_pose_transit(self.domain, config, pre, size, held,
+            sizes = self.believed_sizes()
+            plan = plan_pre_pose_transit(self.domain, config, pre, sizes, self._held_size(sizes),
                                          seed=lambda: int(self.rng.integers(2**31)))
         finally:
             self.stats.planning_s += time.perf_counter() - t0
         if plan.fallback is not None:
             self.stats.transit_fallbacks.append(plan.fallback[:200])
         return plan.path
+
+    def _held_size(self, sizes: np.ndarray) -> float:
+        """The believed size of the block in the hand (0: the hand is empty)."""
+        names = list(self.domain.block_names)
+        for atom in self.state:
+            name, args = parse_term(atom, "atom")
+            if name == "is_holding" and len(args) == 2 and args[1] in names:
+                return float(sizes[names.index(args[1])])
+        return 0.0
 
     def next_step(self) -> PendingStep | None:
         """The next action with its pose, trajectory and expected effect (None: episode over)."""
@@ -248,9 +259,11 @@ class Session:
         pre = self.domain.pre_pose(config, action, x)
         transit = self._transit(config, pre)
         traj = self.domain.action_trajectory(config, action, x, transit)
-        t_pre = self.domain.transit_end_time(config, action, x, transit)
+        # Particle worlds skip a checked transit (free space); an unchecked one may touch
+        # something, so they replay the whole trajectory from its start, as the robot moved.
+        t_pre = 0.0 if transit is None else self.domain.transit_end_time(config, action, x, transit)
         expected = self.task.apply(self.state, action)
-        self.pending = PendingStep(action, x, traj, expected, t_pre, xs)
+        self.pending = PendingStep(action, x, traj, expected, t_pre, xs, unchecked_transit=transit is None)
         return self.pending
 
     def observe(self, observation: Observation) -> dict:
@@ -291,9 +304,12 @@ class Session:
         else:  # "paper": each particle runs its own trajectory to its own pose x_i
             trajs = np.array([self.domain.action_trajectory(before.configuration, step.action, xi)
                               for xi in step.particle_poses])
-            t_pre = [self.domain.transit_end_time(before.configuration, step.action, xi)
-                     for xi in step.particle_poses]
-            res = self.shard_pool.simulate(start, sizes, step.action, trajs, np.array(t_pre))
+            t_pre = np.array([0.0 if step.unchecked_transit else
+                              self.domain.transit_end_time(before.configuration, step.action, xi)
+                              for xi in step.particle_poses])
+            res = self.shard_pool.simulate(start, sizes, step.action, trajs, t_pre)
+        if step.unchecked_transit:
+            self.stats.replayed_fallback()
         self.stats.physics_s += time.perf_counter() - t0
         self.particle_actions += len(sizes)
         self.particle_steps += int(res["steps"].sum())

@@ -7,6 +7,7 @@ import re
 import numpy as np
 
 from ..configuration import Configuration
+from ..obstacles import Box, body_box, cube_box, hand_boxes, per_block
 from ..properties import MAX_DENSITY, MIN_DENSITY, SIZES_VARIATION_SCALE, PropertyError, block_properties
 from . import columns, probes, scene, state_mapping, trajectories
 from .spec import ContainerSpec
@@ -134,31 +135,32 @@ class ContainerDomain:
                          transit: np.ndarray | None = None) -> float:
         return trajectories.transit_end_time(self.spec, config, action, key, transit)
 
-    def gripper_box(self, held_size: float = 0.0) -> tuple[np.ndarray, float]:
-        """(half extents, z offset of its centre above the fingertips) of a box around the
-        gripper: fingers at their widest and the palm, plus a held block hanging below."""
-        fx, fy, fz = self.spec.finger_half
-        top = self.spec.palm_offset + self.spec.palm_half[2]
-        half = np.array([fx + 0.001, self.spec.max_opening / 2 + 2 * fy, (top + held_size) / 2])
-        return half, (top - held_size) / 2
+    def gripper_boxes(self, held_size: float = 0.0, opening: float | None = None) -> list[tuple[np.ndarray, float]]:
+        """(half extents, z offset of the centre above the fingertips) of the boxes of the
+        gripper: palm, fingers `opening` apart (default: their widest) and a held block as
+        Y grasps it."""
+        sp = self.spec
+        opening = sp.max_opening if opening is None else min(float(opening), sp.max_opening)
+        return hand_boxes(sp.palm_half, sp.finger_half, sp.palm_offset, opening, held_size, sp.grip_depth)
 
     def default_transit(self, start: np.ndarray, pre: np.ndarray) -> np.ndarray:
         """Up, across at a safe height, down: (M, 5) waypoints."""
         return trajectories.default_transit(self.spec, start, pre)
 
-    def obstacles(self, config: Configuration, size: float) -> list[tuple[np.ndarray, np.ndarray]]:
-        """Axis-aligned boxes (centre, half extents) around the container and every block
-        not in the hand, for the motion planner's geometric collision check."""
+    def obstacles(self, config: Configuration, size) -> list[Box]:
+        """Boxes (centre, half extents, rotation) of the container and every block
+        not in the hand, for the motion planner's geometric collision check; `size` is the
+        believed block size, one for all or one per block."""
         labels = state_mapping.block_labels(self.spec, config)
-        c = config.objects[0]
+        sizes = per_block(size, self.spec.n_blocks)
         ox, oy = self.spec.outer_half
         top = self.spec.floor_thickness + self.spec.wall_height
-        boxes = [(np.array([c[0], c[1], top / 2]), np.array([ox, oy, top / 2]))]
+        boxes = [body_box(config.objects[0], (ox, oy, top / 2), (0.0, 0.0, top / 2))]
         for i, label in enumerate(labels):
             if label not in (state_mapping.HELD, state_mapping.GOAL):
-                p = config.objects[1 + i, :3]
-                # s / sqrt(2) in x and y holds a cube of side s at any yaw.
-                boxes.append((p.copy(), np.array([0.71 * size, 0.71 * size, 0.5 * size])))
+                # As it lies: columns side by side in the tray are 3 mm apart, and a
+                # held block goes down beside the other column or a leaning block.
+                boxes.append(cube_box(config.objects[1 + i], sizes[i]))
         return boxes
 
     def pre_pose(self, config: Configuration, action: str, key: np.ndarray) -> np.ndarray:

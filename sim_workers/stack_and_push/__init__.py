@@ -9,6 +9,7 @@ import numpy as np
 
 from ..configuration import Configuration, Workspace
 from ..container.scene import GRIPPER_MASS
+from ..obstacles import Box, cube_box, hand_boxes, per_block
 from ..properties import MAX_DENSITY, MIN_DENSITY, SIZES_VARIATION_SCALE, PropertyError, PropertySpace, block_properties
 from . import efforts, probes, scene, state_mapping, trajectories
 from .spec import StackAndPushSpec
@@ -212,31 +213,33 @@ class StackAndPushDomain:
                          transit: np.ndarray | None = None) -> float:
         return trajectories.transit_end_time(self.spec, config, action, key, transit)
 
-    def gripper_box(self, held_size: float = 0.0) -> tuple[np.ndarray, float]:
-        """(half extents, z offset of its centre above the fingertips) of a box around the
-        gripper: fingers at their widest and the palm, plus a held block hanging below."""
-        fx, fy, fz = self.spec.finger_half
-        top = self.spec.palm_offset + self.spec.palm_half[2]
-        half = np.array([fx + 0.001, self.spec.max_opening / 2 + 2 * fy, (top + held_size) / 2])
-        return half, (top - held_size) / 2
+    def gripper_boxes(self, held_size: float = 0.0, opening: float | None = None) -> list[tuple[np.ndarray, float]]:
+        """(half extents, z offset of the centre above the fingertips) of the boxes of the
+        gripper: palm, fingers `opening` apart (default: their widest) and a held block as
+        Y grasps it."""
+        sp = self.spec
+        opening = sp.max_opening if opening is None else min(float(opening), sp.max_opening)
+        return hand_boxes(sp.palm_half, sp.finger_half, sp.palm_offset, opening, held_size, sp.grip_depth)
 
     def default_transit(self, start: np.ndarray, pre: np.ndarray) -> np.ndarray:
         """Up, across at a safe height, down: (M, 5) waypoints."""
         return trajectories.default_transit(self.spec, start, pre)
 
-    def obstacles(self, config: Configuration, size: float) -> list[tuple[np.ndarray, np.ndarray]]:
-        """Axis-aligned boxes (centre, half extents) around the rail walls and every block
-        not in the hand or delivered, for the motion planner's collision check."""
+    def obstacles(self, config: Configuration, size) -> list[Box]:
+        """Boxes (centre, half extents, rotation) of the rail walls and every block
+        not in the hand or delivered, for the motion planner's collision check; `size` is
+        the believed block size, one for all or one per block."""
         spec = self.spec
         labels, _ = state_mapping.block_labels(spec, config)
+        sizes = per_block(size, spec.n_blocks)
         x0, x1 = spec.rail_x
         yc = spec.rail_half_gap + spec.wall_thickness / 2
         wall = np.array([(x1 - x0) / 2, spec.wall_thickness / 2, spec.wall_height / 2])
-        boxes = [(np.array([(x0 + x1) / 2, s * yc, spec.wall_height / 2]), wall.copy()) for s in (-1, 1)]
+        boxes = [(np.array([(x0 + x1) / 2, s * yc, spec.wall_height / 2]), wall.copy(), np.eye(3)) for s in (-1, 1)]
         for i, label in enumerate(labels):
             if label not in (state_mapping.HELD, state_mapping.GOAL):
-                # s / sqrt(2) in x and y holds a cube of side s at any yaw.
-                boxes.append((config.objects[i, :3].copy(), np.array([0.71 * size, 0.71 * size, 0.5 * size])))
+                # As it lies: the push's pre-pose is 3 mm behind the tower's rear faces.
+                boxes.append(cube_box(config.objects[i], sizes[i]))
         return boxes
 
     def pre_pose(self, config: Configuration, action: str, key: np.ndarray) -> np.ndarray:

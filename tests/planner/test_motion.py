@@ -2,6 +2,7 @@
 checked approaches, the box checker."""
 from __future__ import annotations
 
+import itertools
 import math
 
 import numpy as np
@@ -260,6 +261,79 @@ def test_box_checker_geometry():
     assert chk is not sphere and sphere(np.array([0.0, 0.0, 0.0, 0.0]))
     assert not sphere(np.array([0.0, 0.0, 0.0, 0.0]) + [0, 0.02, 0, 0])
     assert not box_checker(slot, gripper_radius=0.04, margin=0.02)(np.zeros(4))
+
+
+def _rot_z(a: float) -> np.ndarray:
+    c, s = math.cos(a), math.sin(a)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+def _random_rotation(rng: np.random.Generator) -> np.ndarray:
+    q, r = np.linalg.qr(rng.normal(size=(3, 3)))
+    q = q * np.sign(np.diag(r))
+    return q if np.linalg.det(q) > 0 else -q
+
+
+def test_turned_boxes_are_checked_as_they_lie():
+    """A turned obstacle (centre, half extents, rotation): the identity is the axis-aligned
+    box; a turn about z is the whole scene turned the other way (the exact yaw-only test);
+    a cube turned by 45 degrees leaves free the corners of its bounds."""
+    rng = np.random.default_rng(0)
+    half = np.array([0.03, 0.02, 0.025])
+    for _ in range(300):
+        q = np.array([*rng.uniform(-0.12, 0.12, 3), rng.uniform(-math.pi, math.pi)])
+        centre = rng.uniform(-0.03, 0.03, 3)
+        assert box_checker([(centre, half, np.eye(3))], GRIPPER)(q) == box_checker([(centre, half)], GRIPPER)(q)
+        a = rng.uniform(-math.pi, math.pi)
+        turned = box_checker([(centre, half, _rot_z(a))], GRIPPER)(q)
+        back = _rot_z(-a)
+        scene = box_checker([(back @ centre, half)], GRIPPER)(np.array([*(back @ q[:3]), q[3] - a]))
+        assert turned == scene
+    cube = [((0.0, 0.0, 0.0), (0.03, 0.03, 0.03), _rot_z(math.pi / 4))]
+    tip = np.array([0.035, 0.035, 0.0, 0.0])            # inside the bounds, beside a face
+    assert box_checker(cube, gripper_radius=0.005)(tip)
+    assert not box_checker([((0.0, 0.0, 0.0), (0.0425, 0.0425, 0.03))], gripper_radius=0.005)(tip)
+    assert not box_checker(cube, gripper_radius=0.005)(np.array([0.03, 0.0, 0.0, 0.0]))
+
+
+def _edges(centre: np.ndarray, rot: np.ndarray, half: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
+    """The 12 edges of a box, as (end, end) pairs."""
+    corner = {sg: centre + rot @ (np.array(sg) * half) for sg in itertools.product((-1, 1), repeat=3)}
+    return [(corner[sg], corner[sg[:k] + (1,) + sg[k + 1:]]) for sg in corner for k in range(3) if sg[k] == -1]
+
+
+def _segment_meets_box(p0: np.ndarray, p1: np.ndarray, centre, rot, half) -> bool:
+    """Whether a segment meets a box: clipped to the box's three slabs, in its frame."""
+    a, b = rot.T @ (p0 - centre), rot.T @ (p1 - centre)
+    lo, hi = 0.0, 1.0
+    for k in range(3):
+        d = b[k] - a[k]
+        if d == 0.0:
+            if abs(a[k]) > half[k]:
+                return False
+            continue
+        u, v = sorted(((-half[k] - a[k]) / d, (half[k] - a[k]) / d))
+        lo, hi = max(lo, u), min(hi, v)
+        if lo > hi:
+            return False
+    return True
+
+
+def test_tipped_boxes_agree_with_an_edge_by_edge_test():
+    """The separating-axis test against boxes tipped any way agrees with an independent
+    exact test: two boxes meet iff an edge of one meets the other (every vertex of their
+    intersection is a vertex of one inside the other or an edge of one through a face)."""
+    rng = np.random.default_rng(1)
+    gripper, hits = np.array(GRIPPER), 0
+    for _ in range(1000):
+        half, rot = rng.uniform(0.01, 0.04, 3), _random_rotation(rng)
+        q = np.array([*rng.uniform(-0.1, 0.1, 3), rng.uniform(-math.pi, math.pi)])
+        turn, origin = _rot_z(q[3]), np.zeros(3)
+        meet = (any(_segment_meets_box(a, b, origin, rot, half) for a, b in _edges(q[:3], turn, gripper))
+                or any(_segment_meets_box(a, b, q[:3], turn, gripper) for a, b in _edges(origin, rot, half)))
+        assert box_checker([(origin, half, rot)], GRIPPER)(q) == (not meet), (q, half, rot)
+        hits += meet
+    assert 150 < hits < 850            # both outcomes are well represented
 
 
 def test_bounds_validation():
