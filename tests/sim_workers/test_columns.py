@@ -148,7 +148,8 @@ def test_small_blocks_still_pile_in_two_columns(s):
         key = sm.action_pose(SPEC, sizes, stacked_by_y(sizes, k), f"stack(r,b{k + 1},c)")
         local = rotate_z(key[:2] - np.asarray(C), -CYAW)
         np.testing.assert_allclose(local, [side * lx, 0.0], atol=1e-15)
-        assert key[2] == pytest.approx(SPEC.floor_top + level * s + SPEC.release_clearance + s - SPEC.grip_depth)
+        below = SPEC.floor_top + level * s                  # the column's top under the block
+        assert key[2] == pytest.approx(below + SPEC.release_clearance + s - SPEC.grip_depth)
 
 
 # -- re-grounding and Y^-1 -----------------------------------------------------------------
