@@ -8,7 +8,7 @@ import pytest
 from coordinator.reality import Observation
 from coordinator.run_config import RunConfig
 from coordinator.session import Session
-from coordinator.transit import transit_checker
+from coordinator.transit import plan_pre_pose_transit, transit_checker
 from planner.motion import box_checker, interpolate_config
 from sim_workers.configuration import Configuration, quat_from_yaw
 from sim_workers.grounded_world import GroundedWorld
@@ -71,7 +71,7 @@ def test_a_transit_that_fails_is_counted_in_the_episode_record():
     record = session.stats.record(0, session.posterior(), None)
     assert record["transit_fallbacks"] == 1
     assert "in collision" in record["transit_fallback_notes"][0]
-    assert record["transit_fallback_notes"][0].endswith("(tried straight, up_across_down, rrtstar)")
+    assert record["transit_fallback_notes"][0].endswith("(tried straight, up_across_down, over_the_top, rrtstar)")
 
 
 # -- the checked transit is free in the scene itself ------------------------------------------
@@ -329,3 +329,22 @@ def test_container_pre_poses_over_a_pile_of_large_blocks_have_checked_transits(s
     path = session._transit(empty, pre)
     assert path is not None, session.stats.transit_fallbacks
     assert _touches_scene(domain, empty, np.full(8, size), path) == []
+
+
+def test_a_held_block_goes_over_a_taller_column_when_the_carry_height_is_too_low():
+    """Four blocks in one column, one in the other: the stack's pre-pose over the low
+    column is 170 mm up, the carry height 200 mm, so a held block carried across at the
+    carry height meets the tall column's top (186 mm). The scene's own candidate goes up
+    until the block clears it, across and down: checked, and free in the scene."""
+    size, held = 0.045, 5
+    config = _container_pile(size, (4, 1), held)
+    session = _known_session("container", size, config)
+    domain = session.domain
+    action = f"stack(r,b{held + 1},c)"
+    key = domain.action_pose({"block_sizes": np.full(8, size)}, config, action)
+    assert key[0] > config.objects[0, 0]                         # the low column, on the right
+    pre = domain.pre_pose(config, action, key)
+    plan = plan_pre_pose_transit(domain, config, pre, session.believed_sizes(), size, seed=lambda: 0)
+    assert plan.strategy == "over_the_top", plan
+    assert plan.path[1, 2] > 0.186 + size - domain.spec.grip_depth
+    assert _touches_scene(domain, config, np.full(8, size), plan.path, held=1 + held, opening=size) == []
