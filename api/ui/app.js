@@ -151,7 +151,9 @@ function beliefPanel(view, truth = {}) {
     const isSize = name === "size";
     const label = (perName > 1 ? `${name} [${d % perName}]` : name) +
       `: ${fmt(b.mean[d] * (isSize ? 1000 : 1), isSize ? 2 : 1)} ± ${fmt(b.std[d] * (isSize ? 1000 : 1), isSize ? 2 : 1)}` +
-      (isSize ? " mm" : ` ${props[name].unit || ""}`) + `  (ESS ${fmt(b.ess, 1)} of ${b.n})`;
+      (isSize ? " mm" : ` ${props[name].unit || ""}`) + `  (ESS ${fmt(b.ess, 1)} of ${b.n})` +
+      // issue 24: a property the channels cannot identify is said to be so, not shown as known
+      (props[name] && props[name].identified === false ? "  — not identified: the measurements do not pin it down" : "");
     wrap.append(histogram(label, h.edges, h.weights, { mult: isSize ? 1000 : 1, unit: isSize ? " mm" : "",
       truth: isSize ? truth.size ?? null : truth[name] ?? null, digits: isSize ? 0 : 0 }));
   });
