@@ -23,7 +23,7 @@ import numpy as np
 
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
-from coordinator.belief import Belief, gaussian_log_likelihood, mode_mask  # noqa: E402
+from coordinator.belief import Belief, mode_mask  # noqa: E402
 from coordinator.commands.run import parse_options  # noqa: E402
 from coordinator.reality import Observation  # noqa: E402
 from coordinator.run_config import RunConfig  # noqa: E402
@@ -52,11 +52,9 @@ def one_action(session: Session, start: Observation, action: str, res: dict, loo
     t0 = time.perf_counter()
     states = [decode_state(s) for s in res["states"]]
     loglik = session._symbolic_loglik(step, expected, states)
-    idx, sigma = session.domain.measurement_model()
-    loglik = loglik + gaussian_log_likelihood(res["measurements"][0, idx], res["measurements"][:, idx], sigma)
-    session.belief.update(loglik)
+    session.reweighting.weigh(session.belief, loglik, res["measurements"][0], res["measurements"])
     session.experience.add_simulated(start.state, action, states, expected, session.belief.weights)
-    session.belief.maybe_resample(session.rng, jitter=0.1, jitter_floor=0.02)
+    session.reweighting.resample(session.belief, session.rng, action)
     t["reweight"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     session._kld_count()

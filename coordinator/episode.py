@@ -28,6 +28,20 @@ class EpisodeStats:
     planning_s: float = 0.0
     transit_fallbacks: list = field(default_factory=list)
     particle_counts: list = field(default_factory=list)   # particle worlds per action
+    informative_updates: int = 0      # belief updates that moved the weights (KL > 1e-3 nats)
+    uninformative_updates: int = 0    # ... and those that did not (every particle alike)
+    rejuvenations: int = 0            # unexplained observations that redrew particles from the prior
+    redrawn_particles: int = 0        # rows redrawn over them
+
+    def count_update(self, informative: bool, redrawn: int) -> None:
+        """Tally one belief update: informative or not, and the rows lock-in redrew."""
+        if informative:
+            self.informative_updates += 1
+        else:
+            self.uninformative_updates += 1
+        if redrawn:
+            self.rejuvenations += 1
+            self.redrawn_particles += int(redrawn)
 
     def account(self, costs: dict, task, state, action: str, next_state, success: bool) -> None:
         """Realised utility of a step: -cost - fail if it failed, + the domain's reward terms."""
@@ -61,6 +75,12 @@ class EpisodeStats:
             # actions that moved without a checked transit (every strategy failed), and why
             "transit_fallbacks": len(self.transit_fallbacks),
             "transit_fallback_notes": list(self.transit_fallbacks),
+            # belief updates that moved the weights, those that did not (issue 24), and the
+            # unexplained observations that redrew particles from the prior (rows redrawn)
+            "informative_updates": self.informative_updates,
+            "uninformative_updates": self.uninformative_updates,
+            "rejuvenations": self.rejuvenations,
+            "redrawn_particles": self.redrawn_particles,
         }
 
 

@@ -85,6 +85,22 @@ class RunConfig(BaseModel):
     # A floor of 2 % (0.6 mm) lets a small particle set still drift onto the truth.
     jitter: float = Field(0.1, ge=0, le=1)
     jitter_floor: float = Field(0.02, ge=0, le=0.5)
+    # The filter against model error and lock-in (issue 24; coordinator/reweighting.py). Each
+    # weighed channel's likelihood is (1 - outlier_rate) N(y; f(L_i), sigma) + outlier_rate x a
+    # floor 50 sensor sigmas wide, so a reading no particle explains moves no weight (0: the
+    # plain Gaussian). model_error "online" widens sigma by the scatter of the belief's
+    # innovations (sqrt(sensor^2 + model^2)). resample_kernel "rpf" jitters resampled copies by
+    # the Musso-Oudjane-Le Gland bandwidth (0.63 posterior stds at 16 particles and 2
+    # properties) instead of the fixed `jitter`. lock_in redraws particles (per block with the
+    # sizes variation) from the prior when no particle explains an observation, at the rate
+    # 1 - w_fast / w_slow of augmented MCL (averages with these rates). Stored settings from
+    # before these fields keep 0, "none", "jitter" and false (stored_run_config).
+    outlier_rate: float = Field(0.05, ge=0, lt=0.5)
+    model_error: Literal["online", "none"] = "online"
+    resample_kernel: Literal["rpf", "jitter"] = "rpf"
+    lock_in: bool = True
+    lock_in_slow: float = Field(0.05, gt=0, lt=1)
+    lock_in_fast: float = Field(0.3, gt=0, le=1)
     sim_weight: float = Field(1.0, ge=0, le=100)
     # How simulated outcomes enter T where reality disagrees (issue 24): "power_prior"
     # discounts each context's simulated counts by how well they predict its real outcomes
@@ -174,6 +190,13 @@ class RunConfig(BaseModel):
         return self
 
     @model_validator(mode="after")
+    def _lock_in_rates_are_ordered(self) -> "RunConfig":
+        if not self.lock_in_slow < self.lock_in_fast:
+            raise ValueError(f"lock_in_slow: {self.lock_in_slow} must be below lock_in_fast "
+                             f"{self.lock_in_fast} (the long-term average moves slower)")
+        return self
+
+    @model_validator(mode="after")
     def _costs_are_the_domains(self) -> "RunConfig":
         from coordinator.domains import task_half
 
@@ -218,12 +241,22 @@ def seed_stream(seed: int, stream: int) -> np.random.Generator:
     return np.random.default_rng(np.random.SeedSequence(seed).spawn(stream + 1)[stream])
 
 
+# What a stored config without the filter fields ran with (the same numbers, bit for bit).
+PRE_ISSUE_24_FILTER = {"outlier_rate": 0.0, "model_error": "none", "resample_kernel": "jitter",
+                       "lock_in": False}
+
+
 def stored_run_config(fields: dict) -> RunConfig:
     """The RunConfig of a stored settings dump (a checkpoint's or a task's spec). Dumps are
     whole (every field), so one without `particle_budget` predates the adaptive budget:
-    it keeps the fixed budget it ran with, whatever the default is now; likewise one
-    without `sim_discount` keeps T's undiscounted simulated counts."""
+    it keeps the fixed budget it ran with, whatever the default is now; likewise one without
+    the filter fields of issue 24 keeps the filter it ran with, and one without
+    `sim_discount` T's undiscounted simulated counts."""
     fields = dict(fields)
     fields.setdefault("particle_budget", "fixed")
     fields.setdefault("sim_discount", "none")
+    # Before issue 24's filter: the plain Gaussian, sensor sigma, fixed jitter, no lock-in.
+    for key, before in PRE_ISSUE_24_FILTER.items():
+        fields.setdefault(key, before)
     return RunConfig(**fields)
+

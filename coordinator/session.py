@@ -24,15 +24,22 @@ from sim_workers.properties import SIZES_VARIATION_SCALE
 from sim_workers.trajectory import columns_of
 
 from .agents import agent_spec
-from .belief import Belief, gaussian_log_likelihood, heaviest_class, mode_mask, symbolic_log_likelihood
+from .belief import Belief, heaviest_class, mode_mask, symbolic_log_likelihood
 from .domains import load as load_domain, property_space
 from .episode import EpisodeStats, utility_terms
 from .experience import ExperiencePool
 from .particle_budget import next_count
 from .reality import Observation
+from .reweighting import Reweighting
 from .run_config import AGENT_STREAM, RunConfig, seed_stream, stored_run_config
 from .transit import plan_pre_pose_transit
 from .transition_model import TransitionModel
+
+# A property whose posterior std is still over this share of its prior's (a uniform prior:
+# width / sqrt(12)) is reported `identified: false`: the data have not yet cut its plausible
+# range in half.
+IDENTIFIED_STD_SHARE = 0.5
+
 
 @dataclass
 class PendingStep:
@@ -73,6 +80,10 @@ class Session:
                        if self.agent.learn_belief else None)
         if self.belief is not None and config.known_properties:
             self.belief = self._point_belief(config)
+        # Likelihood, resampling kernel and lock-in watch, with their state (issue 24).
+        self.reweighting = Reweighting(config, self.domain.measurement_model(),
+                                       list(getattr(self.domain, "block_names", [])),
+                                       len(self.L.names), self.per_block)
         self.experience = ExperiencePool(self.task.context_of)
         self.transition = self._transition_model()
         self.episode = 0
@@ -316,24 +327,21 @@ class Session:
         loglik = self._symbolic_loglik(step, observation.state, res["states"])
         if self.frames is not None:      # before the update: the weights that predicted
             self._prediction = self._predicted(step, observation.state, res, sizes)
-        if self.config.use_measurements:
-            idx, sigma = self.domain.measurement_model()
-            loglik = loglik + gaussian_log_likelihood(observation.measurements[idx],
-                                                      res["measurements"][:, idx], sigma)
-        self.belief.update(loglik)
+        update = self.reweighting.weigh(self.belief, loglik, observation.measurements, res["measurements"])
         if self.agent.sim_experience:
             self.experience.add_simulated(before.state, step.action, res["states"], step.expected,
                                           self.belief.weights)
-        resampled = self.belief.maybe_resample(self.rng, jitter=self.config.jitter,
-                                               jitter_floor=self.config.jitter_floor)
+        # (A point belief at the truth, known_properties, is never redrawn nor resized.)
+        resampled, injected = self.reweighting.resample(self.belief, self.rng, step.action,
+                                                        rejuvenate=not self.config.known_properties)
         self.stats.particle_counts.append(len(sizes))
-        report = {"ess": float(self.belief.ess()), "resampled": bool(resampled), "particles": len(sizes)}
-        # (A point belief at the truth, known_properties, is not a posterior to size.)
+        self.stats.count_update(update.informative, injected)
+        report = {"ess": float(self.belief.ess()), "resampled": bool(resampled), "particles": len(sizes),
+                  "information": update.information, "explained": update.explained, "injected": injected}
         if self.config.particle_budget == "kld" and not self.config.known_properties:
             n = self._kld_count()
             if n != self.belief.n:
-                self.belief.resample_to(n, self.rng, jitter=self.config.jitter,
-                                        jitter_floor=self.config.jitter_floor)
+                self.reweighting.resample_to(self.belief, n, self.rng)
                 report["resampled"] = True
             report["next_particles"] = n
         return report
@@ -376,18 +384,26 @@ class Session:
 
     def posterior(self) -> dict:
         """size_mean/size_std (over the size dimensions), the raw per-dimension mean and
-        std, and ``properties``: {name: {mean, std, unit}} for every property of L."""
+        std, and ``properties``: {name: {mean, std, unit, identified}} for every property of
+        L; ``identified`` is false while the std is still over IDENTIFIED_STD_SHARE of the
+        prior's (the channels have not pinned it down: read the mean as a guess), and the
+        measurement channels' likelihood sigma (``measurement_sigma``, sensor widened by
+        the measured model error)."""
         k = self.n_blocks if self.per_block else 1
         if self.belief is None:
             mean, std = self.believed_row(), np.zeros(self.dims)
         else:
             mean, std = self.belief.mean(), self.belief.std()
+        prior_std = (self.high - self.low) / np.sqrt(12.0)
         props = {name: {"mean": float(np.mean(mean[j * k:(j + 1) * k])),
-                        "std": float(np.mean(std[j * k:(j + 1) * k])), "unit": unit}
+                        "std": float(np.mean(std[j * k:(j + 1) * k])), "unit": unit,
+                        "identified": bool(np.all(std[j * k:(j + 1) * k]
+                                                  <= IDENTIFIED_STD_SHARE * prior_std[j * k:(j + 1) * k]))}
                  for j, (name, unit) in enumerate(zip(self.L.names, self.L.units))}
         out = {"size_mean": props["size"]["mean"], "size_std": props["size"]["std"]}
         if self.belief is not None:
-            out.update(mean=[float(v) for v in mean], std=[float(v) for v in std])
+            out.update(mean=[float(v) for v in mean], std=[float(v) for v in std],
+                       measurement_sigma=[float(v) for v in self.reweighting.sigma()])
         out["properties"] = props
         return out
 
@@ -422,6 +438,7 @@ class Session:
             "version": 1,
             "config": self.config.model_dump(),
             "belief": self.belief.to_dict() if self.belief is not None else None,
+            "reweighting": self.reweighting.to_dict(),
             "experience": self.experience.to_dict(),
             "rng": self.rng.bit_generator.state,
             "episode": self.episode,
@@ -435,6 +452,7 @@ class Session:
         session = cls(stored_run_config(data["config"]), shard_pool)
         if data["belief"] is not None:
             session.belief = Belief.from_dict(data["belief"])
+        session.reweighting.load(data.get("reweighting"))     # absent before issue 24
         session.experience = ExperiencePool.from_dict(data["experience"], session.task.context_of)
         session.transition = session._transition_model()
         session.rng.bit_generator.state = data["rng"]

@@ -19,7 +19,8 @@ NAMES = list(AGENTS)
 # What every episode record carries (result.json's "episodes", the service's /episodes).
 RECORD_KEYS = {"episode", "utility", "actions", "failures", "loads", "delivered", "plans",
                "posterior", "ess", "wall_s", "physics_s", "planning_s", "particle_actions",
-               "particles_per_action", "transit_fallbacks", "transit_fallback_notes"}
+               "particles_per_action", "transit_fallbacks", "transit_fallback_notes",
+               "informative_updates", "uninformative_updates", "rejuvenations", "redrawn_particles"}
 PARTICLES = 4
 
 

@@ -11,7 +11,8 @@ import importlib
 
 import pytest
 
-MODULES = ("coordinator.belief", "coordinator.transition_model", "coordinator.fanout")
+MODULES = ("coordinator.belief", "coordinator.likelihood", "coordinator.rejuvenation",
+           "coordinator.transition_model", "coordinator.fanout")
 
 
 @pytest.mark.parametrize("name", MODULES)

@@ -1,0 +1,78 @@
+"""Regularised resampling and the lock-in monitor (issue 24): the Musso bandwidth, prior
+draws only when no particle explained an observation, only for the block it concerns."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from coordinator.belief import Belief
+from coordinator.rejuvenation import LockInMonitor, action_blocks, inject_prior, rpf_bandwidth
+
+
+def test_the_bandwidth_is_musso_oudjane_le_gland():
+    for n, d in ((16, 1), (16, 2), (8, 16), (1000, 3)):
+        assert rpf_bandwidth(n, d) == pytest.approx((4 / (n * (d + 2))) ** (1 / (d + 4)))
+    assert rpf_bandwidth(1000, 1) < rpf_bandwidth(16, 1) < 1.0        # more particles, less smoothing
+    with pytest.raises(ValueError):
+        rpf_bandwidth(0, 1)
+
+
+def test_the_monitor_redraws_only_at_unexplained_observations_and_more_when_they_repeat():
+    m = LockInMonitor(slow=0.05, fast=0.3)
+    assert [m.observe("b1", True) for _ in range(20)] == [0.0] * 20
+    shares = [m.observe("b1", False) for _ in range(3)]
+    assert 0.2 < shares[0] < shares[1] < shares[2] < 0.7
+    assert m.observe("b1", True) == 0.0                               # explained: never
+    # Another block's history is its own: its first unexplained observation starts afresh.
+    assert m.observe("b2", False) == pytest.approx(shares[0], abs=0.1)
+    with pytest.raises(ValueError, match="slow < fast"):
+        LockInMonitor(slow=0.5, fast=0.3)
+
+
+def test_the_monitor_round_trips():
+    m = LockInMonitor()
+    for key, ok in (("b1", True), ("b2", False), ("b1", False)):
+        m.observe(key, ok)
+    back = LockInMonitor.from_dict(m.to_dict())
+    assert back == m
+    assert back.observe("b1", False) == m.observe("b1", False)
+    assert LockInMonitor.from_dict(None, slow=0.1, fast=0.4) == LockInMonitor(0.1, 0.4)
+
+
+def test_action_blocks_reads_the_blocks_an_action_names():
+    names = [f"b{i}" for i in range(1, 9)]
+    assert action_blocks("pickup(r,b3,init)", names) == [2]
+    assert action_blocks("stack(r, b8, tower)", names) == [7]
+    assert action_blocks("push(r,tower,start,goal)", names) == []
+
+
+def _locked(n: int = 16) -> Belief:
+    """Every particle's block-2 size stuck at the prior's 30 mm floor; other blocks spread."""
+    rng = np.random.default_rng(0)
+    b = Belief.from_prior(n, [0.030] * 3, [0.060] * 3, rng)
+    b.particles[:, 1] = 0.030 + 0.0005 * rng.random(n)
+    return b
+
+
+def test_inject_redraws_the_given_dimensions_of_a_share_of_rows_from_the_prior():
+    b = _locked()
+    before = b.particles.copy()
+    count = inject_prior(b, 0.5, np.array([1]), np.random.default_rng(1), 0.6, 0.02)
+    assert count in (8, 9)                                            # floor(0.5 * 16 + u)
+    changed = np.flatnonzero(b.particles[:, 1] != before[:, 1])
+    assert len(changed) == count
+    assert np.all((b.particles[:, 1] >= 0.030) & (b.particles[:, 1] <= 0.060))
+    assert b.particles[changed, 1].std() > 0.003                      # spread over the prior
+    # Other blocks keep what they learned (uniform weights: resampling moved nothing).
+    assert np.array_equal(b.particles[:, [0, 2]], before[:, [0, 2]])
+    assert np.allclose(b.weights, 1 / 16)
+
+
+def test_inject_is_deterministic_with_a_seeded_generator_and_draws_nothing_for_zero():
+    a, b = _locked(), _locked()
+    inject_prior(a, 0.3, np.array([1]), np.random.default_rng(7), 0.6, 0.02)
+    inject_prior(b, 0.3, np.array([1]), np.random.default_rng(7), 0.6, 0.02)
+    assert np.array_equal(a.particles, b.particles)
+    c = _locked()
+    assert inject_prior(c, 0.0, np.array([1]), np.random.default_rng(7), 0.6, 0.02) == 0
+    assert np.array_equal(c.particles, _locked().particles)

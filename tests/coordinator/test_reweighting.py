@@ -1,0 +1,191 @@
+"""The session's reweighting (issue 24) on hand-made particle predictions (no physics): an
+outcome no particle explains changes nothing, lock-in redraws the block concerned, every
+draw is the session's generator, and checkpoints (new and old) carry the filter's state."""
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+from pydantic import ValidationError
+
+from coordinator.belief import gaussian_log_likelihood
+from coordinator.run_config import PRE_ISSUE_24_FILTER, RunConfig, stored_run_config
+from coordinator.session import Session
+
+N = 16
+
+
+def session(**kw) -> Session:
+    return Session(RunConfig(**{"particles": N, "seed": 5, "particle_budget": "fixed", **kw}))
+
+
+def predictions(s: Session, opening: np.ndarray) -> np.ndarray:
+    """(N, M) measurement vectors: the container's finger opening (channel 0) per particle."""
+    pred = np.zeros((s.belief.n, 17))
+    pred[:, 0] = opening
+    return pred
+
+
+def observed(opening: float) -> np.ndarray:
+    obs = np.full(17, np.nan)
+    obs[0] = opening
+    return obs
+
+
+def symbolic(s: Session, matched: np.ndarray) -> np.ndarray:
+    e = s.config.error_rate
+    return np.where(matched, math.log1p(-e), math.log(e))
+
+
+def test_a_failure_no_particle_explains_leaves_the_belief_unchanged():
+    """Fingers closed on air (opening 0.5 mm, the grasp failed) where every particle
+    predicted a grasp at its own size: the weights stay, the update counts as uninformative
+    and unexplained. The filter of before moved the belief toward the smallest sizes."""
+    s = session()
+    before = s.belief.log_weights.copy()
+    sizes = s.particle_sizes()[:, 0]
+    out = s.reweighting.weigh(s.belief, symbolic(s, np.zeros(N, bool)), observed(0.0005), predictions(s, sizes))
+    assert not out.informative and not out.explained and out.information < 1e-9
+    assert np.allclose(s.belief.log_weights, before, rtol=0, atol=1e-9)
+    old = Session(stored_run_config({**session().config.model_dump(),
+                                     **{k: v for k, v in PRE_ISSUE_24_FILTER.items()}}))
+    mean0 = old.belief.mean()[0]
+    out_old = old.reweighting.weigh(old.belief, symbolic(old, np.zeros(N, bool)), observed(0.0005),
+                                    predictions(old, old.particle_sizes()[:, 0]))
+    assert out_old.informative and old.belief.mean()[0] < mean0 - 0.005
+
+
+def test_an_informative_outcome_still_moves_it():
+    s = session()
+    sizes = s.particle_sizes()[:, 0]
+    truth = float(sizes[3])
+    out = s.reweighting.weigh(s.belief, symbolic(s, np.abs(sizes - truth) < 0.006), observed(truth),
+                              predictions(s, sizes))
+    assert out.informative and out.explained and out.information > 0.5
+    assert abs(s.belief.mean()[0] - truth) < 0.002
+
+
+def _lock_block(s: Session, k: int) -> None:
+    """Every particle's block-k size at the prior's 30 mm floor (the others as drawn)."""
+    s.belief.particles[:, k] = 0.030 + 0.0003 * np.arange(N) / N
+
+
+def _failed_pickup(s: Session, k: int):
+    """A pickup of block k that fails in reality and in no particle world, opening 0."""
+    out = s.reweighting.weigh(s.belief, symbolic(s, np.zeros(N, bool)), observed(0.0),
+                              predictions(s, s.belief.particles[:, k]))
+    return out, s.reweighting.resample(s.belief, s.rng, f"pickup(r,b{k + 1},init)")
+
+
+def test_rejuvenation_fires_when_every_particle_mispredicts_and_not_otherwise():
+    s = session(sizes_variation=True)
+    _lock_block(s, 2)
+    # Explained pickups (every particle predicted the success and the opening) draw nothing.
+    state = json.dumps(s.rng.bit_generator.state)
+    for _ in range(5):
+        s.reweighting.weigh(s.belief, symbolic(s, np.ones(N, bool)), observed(0.0301),
+                            predictions(s, s.belief.particles[:, 2]))
+        assert s.reweighting.resample(s.belief, s.rng, "pickup(r,b3,init)") == (False, 0)
+    assert json.dumps(s.rng.bit_generator.state) == state
+    # The first failure every particle mispredicts redraws about a quarter of block 3's sizes,
+    # and only block 3's: the other blocks keep what they learned.
+    others = np.delete(s.belief.particles, 2, axis=1).copy()
+    out, (resampled, injected) = _failed_pickup(s, 2)
+    assert not out.explained and resampled and 2 <= injected <= 6
+    assert np.array_equal(np.delete(s.belief.particles, 2, axis=1), others)
+    assert s.belief.particles[:, 2].max() > 0.033
+    # Repeated failures widen it further.
+    for _ in range(3):
+        _failed_pickup(s, 2)
+    assert s.belief.std()[2] > 0.004
+
+
+def test_a_shared_size_is_redrawn_whole_and_a_point_belief_never():
+    s = session()
+    _lock_block(s, 0)
+    _, (_, injected) = _failed_pickup(s, 0)
+    assert injected > 0 and s.belief.particles[:, 0].max() > 0.033
+    known = session(known_properties=True)
+    out = known.reweighting.weigh(known.belief, symbolic(known, np.zeros(N, bool)), observed(0.0),
+                                  predictions(known, known.belief.particles[:, 0]))
+    assert not out.explained
+    assert known.reweighting.resample(known.belief, known.rng, "pickup(r,b1,init)", rejuvenate=False) == (False, 0)
+
+
+def _sequence(s: Session) -> np.ndarray:
+    _lock_block(s, 0)
+    for k in range(4):
+        _failed_pickup(s, 0)
+        sizes = s.belief.particles[:, 0]
+        s.reweighting.weigh(s.belief, symbolic(s, sizes > 0.035), observed(0.041), predictions(s, sizes))
+        s.reweighting.resample(s.belief, s.rng, "pickup(r,b1,init)")
+    return s.belief.particles.copy()
+
+
+def test_every_draw_is_the_sessions_seeded_generator():
+    assert np.array_equal(_sequence(session()), _sequence(session()))
+    assert not np.array_equal(_sequence(session()), _sequence(session(seed=6)))
+
+
+def test_a_checkpoint_carries_the_filters_state_and_resumes_identically():
+    s = session()
+    _sequence(s)
+    rng = np.random.default_rng(9)
+    for _ in range(8):                       # innovations with scatter: a model error to keep
+        y = 0.041 + 0.004 * rng.standard_normal()
+        s.reweighting.weigh(s.belief, symbolic(s, np.ones(N, bool)), observed(y),
+                            predictions(s, s.belief.particles[:, 0]))
+    assert s.reweighting.model_error.model_sigma[0] > 0
+    data = json.loads(json.dumps(s.to_checkpoint()))            # through JSON, as stored
+    back = Session.from_checkpoint(data)
+    assert back.reweighting.to_dict() == s.reweighting.to_dict()
+    assert np.array_equal(back.reweighting.sigma(), s.reweighting.sigma())
+    assert np.array_equal(_sequence(back), _sequence(s))
+
+
+def test_an_old_checkpoint_loads_and_keeps_the_filter_it_ran_with():
+    """A checkpoint from before issue 24 (no `reweighting`, a config without the filter
+    fields) resumes with the plain Gaussian and the fixed jitter, bit for bit as before."""
+    s = session()
+    data = json.loads(json.dumps(s.to_checkpoint()))
+    data.pop("reweighting")
+    for key in ("outlier_rate", "model_error", "resample_kernel", "lock_in", "lock_in_slow", "lock_in_fast"):
+        data["config"].pop(key)
+    old = Session.from_checkpoint(data)
+    assert {k: getattr(old.config, k) for k in PRE_ISSUE_24_FILTER} == PRE_ISSUE_24_FILTER
+    reference = old.belief.particles.copy(), old.belief.log_weights.copy()
+    sizes = old.belief.particles[:, 0]
+    ll = symbolic(old, sizes > 0.040)
+    old.reweighting.weigh(old.belief, ll, observed(0.043), predictions(old, sizes))
+    rng_ref = np.random.default_rng(3)
+    old.reweighting.resample(old.belief, np.random.default_rng(3), "pickup(r,b1,init)")
+    # What the loop did before: Gaussian on the opening, then resampling with jitter 0.1.
+    from coordinator.belief import Belief
+    ref = Belief(reference[0], reference[1], old.belief.low, old.belief.high)
+    ref.update(ll + gaussian_log_likelihood([0.043], sizes[:, None], [0.002]))
+    ref.maybe_resample(rng_ref, jitter=0.1, jitter_floor=old.config.jitter_floor)
+    assert np.array_equal(old.belief.particles, ref.particles)
+    assert np.array_equal(old.belief.log_weights, ref.log_weights)
+
+
+def test_the_posterior_says_which_properties_the_channels_identified():
+    s = Session(RunConfig(domain="stack_and_push", options={"unknown_density": True},
+                          particles=64, seed=3))
+    assert not any(p["identified"] for p in s.posterior()["properties"].values())   # the prior
+    s.belief.particles[:, 0] = 0.040 + 0.0002 * s.rng.standard_normal(64)            # size pinned
+    props = s.posterior()["properties"]
+    assert props["size"]["identified"] and not props["density"]["identified"]
+    assert s.posterior()["measurement_sigma"] == [0.002, 0.1, 0.002]
+
+
+def test_the_filter_settings_are_validated():
+    with pytest.raises(ValidationError, match="lock_in_slow"):
+        RunConfig(lock_in_slow=0.5, lock_in_fast=0.3)
+    with pytest.raises(ValidationError, match="outlier_rate"):
+        RunConfig(outlier_rate=0.7)
+    with pytest.raises(ValidationError, match="resample_kernel"):
+        RunConfig(resample_kernel="gauss")
+    d = RunConfig()
+    assert (d.outlier_rate, d.model_error, d.resample_kernel, d.lock_in) == (0.05, "online", "rpf", True)
