@@ -132,6 +132,10 @@ def summary_table(summary: dict) -> str:
     second table). DIR/NAME.md holds it, and docs/RESULTS.md embeds it verbatim."""
     from ..agents import agent
 
+    if "rows" in summary:                  # the sweep's DIR/sweep.json: its own table
+        from .sweep import sweep_table
+
+        return sweep_table(summary["rows"], summary["summary"])
     spec = summary["spec"]
     optima = summary["optimum_under_true_T"]
     if isinstance(optima, list):       # one truth per run
