@@ -133,7 +133,7 @@ def _per_domain(name: str, doc: str, fields: dict, with_truth: bool) -> Any:
     container): each carries that domain's `options` (and `truth`)."""
     from pydantic import Discriminator, Tag
 
-    from coordinator.domains import load, names
+    from coordinator.domains import load, names, task_half
 
     domain_info = fields["domain"][1]
     branches = []
@@ -147,6 +147,12 @@ def _per_domain(name: str, doc: str, fields: dict, with_truth: bool) -> Any:
                                           description=f"blocks in the scene (1..{top} in {d})"))
         if with_truth:
             own["truth"] = (truth, Field(default_factory=truth, description=truth.__doc__))
+        if "reality_fail" in own:        # the schema names the domain's actions (issue 24)
+            acts = sorted({a for a, _ in task_half(d).contexts(1)})
+            own["reality_fail"] = (str | None, Field(
+                None, max_length=64, pattern=f"^({'|'.join(acts)})(:[0-9]{{1,3}})?$",
+                description="a reality gap the particle worlds do not know: ACTION:K makes every "
+                            "ACTION in a T context >= K fail in the simulated reality only"))
         if d == "container":
             own["domain"] = (Literal["container"], Field("container", description=domain_info.description))
         else:
@@ -194,7 +200,8 @@ def task_spec_model(max_particles: int, max_episodes: int, max_steps: int = 1000
 def session_create_model(max_particles: int, max_episodes: int, max_steps: int = 1000) -> Any:
     """An external-robot session: the learning settings plus, optionally, the first
     episode's initial observation. The truth (`true_size`) is the robot's world, not a field."""
-    fields = _spec_fields({"true_size", "known_properties"}, max_particles, max_episodes, max_steps)
+    fields = _spec_fields({"true_size", "known_properties", "reality_fail"}, max_particles, max_episodes,
+                          max_steps)
     fields["reality"] = (Literal["external"], Field(
         "external", description="the robot that posts observations is the real world"))
     fields["observation"] = (InitialObservation | None, Field(

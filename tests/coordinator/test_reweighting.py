@@ -182,7 +182,7 @@ def test_the_posterior_says_which_properties_the_channels_identified():
 
 def test_the_filter_settings_are_validated():
     with pytest.raises(ValidationError, match="lock_in_slow"):
-        RunConfig(lock_in_slow=0.5, lock_in_fast=0.3)
+        RunConfig(lock_in_slow=0.5, lock_in_fast=0.3)     # slow's range ends below fast's
     with pytest.raises(ValidationError, match="outlier_rate"):
         RunConfig(outlier_rate=0.7)
     with pytest.raises(ValidationError, match="resample_kernel"):
