@@ -43,6 +43,9 @@ def hand_boxes(palm_half, finger_half, palm_offset: float, opening: float,
     m = GRIPPER_MARGIN
     fx, fy, fz = finger_half
     palm = (np.array(palm_half, dtype=np.float64) + m, palm_offset)
+    # One box for both fingers and the space between them: a transit that passed a block
+    # between the open fingers (a millimetre or two from its faces, at the believed size)
+    # would be a grasp the particle worlds never simulate, not free space.
     fingers = (np.array([fx + m, opening / 2 + 2 * fy + m, fz + m / 2]), fz - m / 2)
     if held_size <= 0:
         return [palm, fingers]

@@ -83,43 +83,47 @@ def _known_session(domain: str, size: float, config: Configuration) -> Session:
     return s
 
 
+def _dense(path: np.ndarray, step: float = 0.005) -> list[np.ndarray]:
+    """The path's states at most `step` apart."""
+    return [interpolate_config(a, b, t) for a, b in zip(path[:-1], path[1:])
+            for t in np.linspace(0, 1, int(np.ceil(np.linalg.norm(b[:3] - a[:3]) / step)) + 1)]
+
+
+def _scene_bodies(domain, h) -> dict[int, str]:
+    """Body id -> name of everything a gripper could hit: table, rail or tray, objects."""
+    names = {b: n for n, b in zip(domain.object_names, h.objects)}
+    names[h.table] = "table"
+    for other in ("rail", "container"):
+        if hasattr(h, other):
+            names[getattr(h, other)] = other
+    return names
+
+
 def _touches_scene(domain, config: Configuration, sizes: np.ndarray, path: np.ndarray,
                    held: int | None = None, opening: float | None = None) -> list[tuple[int, str]]:
-    """(waypoint, body) pairs where the gripper, fingers at `opening` (default: their
-    widest, as the planner's box), or the object it holds (`held`, a row of the
-    configuration's objects, carried rigidly), touches the scene built with the true `sizes`, along the
-    path sampled every 5 mm: what a robot moving along it would hit."""
+    """(state, body) pairs where the gripper, fingers `opening` apart (default: their
+    widest, as the check's box), or the object it holds (`held`, a row of the objects,
+    carried rigidly) touches the scene built with the true `sizes`, along the path every
+    5 mm: what a robot moving along it would hit."""
+    opening = domain.spec.max_opening if opening is None else opening
     with GroundedWorld(domain) as world:
         world.reset(config, {"block_sizes": sizes}, place=False)
         h, c = world.handles, world.client
-        names = {b: n for n, b in zip(domain.object_names, h.objects)}
-        names[h.table] = "table"
-        for other in ("rail", "container"):
-            if hasattr(h, other):
-                names[getattr(h, other)] = other
-        carried = None if held is None else h.objects[held]
-        if carried is not None:
-            names.pop(carried)
-            grip = config.objects[held, :3] - config.robot[:3]
-        dense = [interpolate_config(a, b, t) for a, b in zip(path[:-1], path[1:])
-                 for t in np.linspace(0, 1, int(np.ceil(np.linalg.norm(b[:3] - a[:3]) / 0.005)) + 1)]
-        opening = domain.spec.max_opening if opening is None else opening
+        names = _scene_bodies(domain, h)
+        movers = [(h.gripper, np.array([0.0, 0.0, h.palm_offset]))]
+        if held is not None:
+            names.pop(h.objects[held])
+            movers.append((h.objects[held], config.objects[held, :3] - config.robot[:3]))
+        for j in h.fingers:
+            pb.resetJointState(h.gripper, j, opening / 2 + h.finger_inner, physicsClientId=c)
         hits = []
-        for k, q in enumerate(dense):
-            pb.resetBasePositionAndOrientation(h.gripper, [q[0], q[1], q[2] + h.palm_offset],
-                                               quat_from_yaw(q[3]), physicsClientId=c)
-            for j in h.fingers:
-                pb.resetJointState(h.gripper, j, opening / 2 + h.finger_inner, physicsClientId=c)
-            movers = [h.gripper]
-            if carried is not None:
-                pb.resetBasePositionAndOrientation(carried, list(q[:3] + grip), quat_from_yaw(q[3]),
+        for k, q in enumerate(_dense(path)):
+            for body, offset in movers:
+                pb.resetBasePositionAndOrientation(body, list(q[:3] + offset), quat_from_yaw(q[3]),
                                                    physicsClientId=c)
-                movers.append(carried)
             pb.performCollisionDetection(physicsClientId=c)
-            for mover in movers:
-                for body, name in names.items():
-                    if pb.getClosestPoints(mover, body, 0.0, physicsClientId=c):
-                        hits.append((k, name))
+            hits += [(k, name) for mover, _ in movers for body, name in names.items()
+                     if pb.getClosestPoints(mover, body, 0.0, physicsClientId=c)]
         return hits
 
 
