@@ -271,7 +271,7 @@ RESULTS = Path(__file__).resolve().parents[2] / "docs"
 
 # Experiments whose default-scale run is not on the results page yet, and why (visible here
 # on purpose, not skipped silently). Empty: every experiment is measured.
-PENDING_RESULTS: dict[str, str] = {"sweep": "issue 24: the sweep's default-scale run is being measured"}
+PENDING_RESULTS: dict[str, str] = {}
 
 
 @pytest.mark.parametrize("name", [n for n in ex.EXPERIMENTS if n not in PENDING_RESULTS])

@@ -25,7 +25,7 @@ def test_a_reality_only_failure_is_learned_within_an_episode():
     assert all(max(p) <= 2 for p in second["plans"]) and not second["failures"], second
     assert second["delivered"] == 4
     T = result["summary"]["transition"]
-    assert T["stack"][2] < 0.5 and T["stack"][0] == T["stack"][1] == 1.0, T["stack"]
+    assert T["stack"][2] < 0.5 and min(T["stack"][:2]) > 0.999, T["stack"]
 
 
 def test_context_failure_parses_and_applies():
