@@ -299,7 +299,8 @@ class Session:
         loglik = self._symbolic_loglik(step, observation.state, res["states"])
         if self.frames is not None:      # before the update: the weights that predicted
             self._prediction = self._predicted(step, observation.state, res, sizes)
-        update = self.reweighting.weigh(self.belief, loglik, observation.measurements, res["measurements"])
+        update = self.reweighting.weigh(self.belief, step.action, loglik, observation.measurements,
+                                        res["measurements"])
         if self.agent.sim_experience:
             self.experience.add_simulated(before.state, step.action, res["states"], step.expected,
                                           self.belief.weights)
@@ -424,7 +425,7 @@ class Session:
         session = cls(stored_run_config(data["config"]), shard_pool)
         if data["belief"] is not None:
             session.belief = Belief.from_dict(data["belief"])
-        session.reweighting.load(data.get("reweighting"))     # absent before issue 24
+        session.reweighting.load(data.get("reweighting"), session.dims)     # absent before issue 24
         session.experience = ExperiencePool.from_dict(data["experience"], session.task.context_of)
         session.transition = session._transition_model()
         session.rng.bit_generator.state = data["rng"]
