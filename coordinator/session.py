@@ -359,7 +359,8 @@ class Session:
         """size_mean/size_std (over the size dimensions), the raw per-dimension mean and
         std, and ``properties``: {name: {mean, std, unit, identified}} for every property of
         L; ``identified`` is false while the std is still over IDENTIFIED_STD_SHARE of the
-        prior's (the channels have not pinned it down: read the mean as a guess), and the
+        prior's (the channels have not pinned it down: read the mean as a guess; always
+        without a belief, whose mean is the prior's), and the
         measurement channels' likelihood sigma (``measurement_sigma``, sensor widened by
         the measured model error)."""
         k = self.n_blocks if self.per_block else 1
@@ -370,8 +371,8 @@ class Session:
         prior_std = (self.high - self.low) / np.sqrt(12.0)
         props = {name: {"mean": float(np.mean(mean[j * k:(j + 1) * k])),
                         "std": float(np.mean(std[j * k:(j + 1) * k])), "unit": unit,
-                        "identified": bool(np.all(std[j * k:(j + 1) * k]
-                                                  <= IDENTIFIED_STD_SHARE * prior_std[j * k:(j + 1) * k]))}
+                        "identified": self.belief is not None and bool(np.all(
+                            std[j * k:(j + 1) * k] <= IDENTIFIED_STD_SHARE * prior_std[j * k:(j + 1) * k]))}
                  for j, (name, unit) in enumerate(zip(self.L.names, self.L.units))}
         out = {"size_mean": props["size"]["mean"], "size_std": props["size"]["std"]}
         if self.belief is not None:
