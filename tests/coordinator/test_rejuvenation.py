@@ -17,14 +17,15 @@ def test_the_bandwidth_is_musso_oudjane_le_gland():
         rpf_bandwidth(0, 1)
 
 
-def test_the_monitor_redraws_only_at_unexplained_observations_and_more_when_they_repeat():
+def test_the_monitor_redraws_only_at_repeated_unexplained_observations():
     m = LockInMonitor(slow=0.05, fast=0.3)
     assert [m.observe("b1", True) for _ in range(20)] == [0.0] * 20
-    shares = [m.observe("b1", False) for _ in range(3)]
-    assert 0.2 < shares[0] < shares[1] < shares[2] < 0.7
+    shares = [m.observe("b1", False) for _ in range(4)]
+    assert shares[:2] == [0.0, 0.0]                                   # an isolated surprise: nothing
+    assert 0.5 < shares[2] < shares[3] < 0.8                          # the third in a row: 60 %
     assert m.observe("b1", True) == 0.0                               # explained: never
     # Another block's history is its own: its first unexplained observation starts afresh.
-    assert m.observe("b2", False) == pytest.approx(shares[0], abs=0.1)
+    assert m.observe("b2", False) == 0.0
     with pytest.raises(ValueError, match="slow < fast"):
         LockInMonitor(slow=0.5, fast=0.3)
 
