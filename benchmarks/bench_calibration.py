@@ -9,7 +9,7 @@ where the episode records have them, the informative / uninformative update coun
     python benchmarks/bench_calibration.py --suite density --seeds 1
     python benchmarks/bench_calibration.py --suite variation --seeds 1
     python benchmarks/bench_calibration.py --table /tmp/cal.jsonl      # the table of a file
-    python benchmarks/bench_calibration.py --compare before.jsonl after.jsonl
+    python benchmarks/bench_calibration.py --compare before.jsonl after.jsonl --plot calibration.png
 
 `--set KEY=VALUE` sets any RunConfig field for every case (e.g. to compare a setting);
 cases already in the output file (same label and seed) are skipped, so a killed run resumes.
@@ -147,6 +147,39 @@ def compare(before: list[dict], after: list[dict]) -> str:
     return "\n".join(lines)
 
 
+def plot(before: list[dict], after: list[dict], path: str) -> None:
+    """Each truth's posterior error in stds before and after (log scale), the 2-std line."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    index = {(r["label"], r["seed"]): r for r in after}
+    labels, zb, za = [], [], []
+    for b in before:
+        a = index.get((b["label"], b["seed"]))
+        if a is None:
+            continue
+        names = [n for n, *_ in z_scores(b)]
+        for k, ((name, *_, z0), (*_, z1)) in enumerate(zip(z_scores(b), z_scores(a))):
+            block = f" b{k % names.count(name) + 1}" if names.count(name) > 1 else ""
+            labels.append(f"{b['label']} s{b['seed']} {name}{block}")
+            zb.append(max(z0, 1e-2))
+            za.append(max(z1, 1e-2))
+    fig, ax = plt.subplots(figsize=(9, 0.16 * len(labels) + 1.5))
+    y = range(len(labels))
+    ax.scatter(zb, y, marker="x", color="tab:red", label="before")
+    ax.scatter(za, y, marker="o", facecolors="none", edgecolors="tab:blue", label="after")
+    ax.axvline(2.0, color="k", ls="--", lw=1, label="2 std")
+    ax.set_xscale("log")
+    ax.set_yticks(list(y), labels, fontsize=6)
+    ax.set_xlabel("|posterior mean - truth| / posterior std")
+    ax.legend(loc="lower right")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
 def _setting(text: str) -> tuple[str, object]:
     key, _, value = text.partition("=")
     try:
@@ -168,11 +201,14 @@ def main(argv=None) -> int:
     ap.add_argument("--table", default=None, metavar="FILE", help="print the table of FILE and exit")
     ap.add_argument("--compare", nargs=2, default=None, metavar=("BEFORE", "AFTER"),
                     help="print the before/after table of two files and exit")
+    ap.add_argument("--plot", default=None, metavar="PNG", help="with --compare: the errors as a figure")
     args = ap.parse_args(argv)
     args.set = dict(_setting(s) for s in args.set)
     if args.compare:
         rows = [[json.loads(line) for line in Path(f).read_text().splitlines() if line] for f in args.compare]
         print(compare(*rows))
+        if args.plot:
+            plot(*rows, args.plot)
         return 0
     if args.table:
         print(table([json.loads(line) for line in Path(args.table).read_text().splitlines() if line]))

@@ -105,7 +105,12 @@ class Reweighting:
             obs, pred = observed[self.channels], predicted[:, self.channels]
             meas_ll, meas_perfect = self._measurement_ll(obs, pred)
             ll, perfect = ll + meas_ll, perfect + meas_perfect
-            if self.config.model_error == "online":     # the innovation of the weights before
+            if self.config.model_error == "online" and self._all_matched(symbolic_ll):
+                # The innovation of the weights before, where every particle predicted the
+                # observed outcome: a reading of another regime (fingers closed on air where
+                # particles grasp) is a mixture, not model error (early in a run such
+                # readings made half the innovations and inflated the opening's sigma to
+                # 29 mm).
                 self.model_error.observe(obs, pred, belief.weights)
         self._explained = math.exp(min(float(np.max(ll)) - perfect, 0.0)) >= EXPLAINED
         alpha = self._update(belief, action, ll)
@@ -127,6 +132,10 @@ class Reweighting:
             groups.add(g, step)
             belief.log_weights = groups.joint()
         return alpha
+
+    def _all_matched(self, symbolic_ll: np.ndarray) -> bool:
+        """Whether every particle predicted the observed symbolic outcome."""
+        return bool(np.all(np.asarray(symbolic_ll) >= math.log1p(-self.config.error_rate) - 1e-12))
 
     def _measurement_ll(self, obs: np.ndarray, pred: np.ndarray) -> tuple[np.ndarray, float]:
         """Per-particle log-likelihood of the weighed channels, and an exact prediction's."""

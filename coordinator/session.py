@@ -6,7 +6,8 @@ particle worlds replay the action (one Ray call per shard), the belief is reweig
 resampled, the experience pool and T are updated, and the plan is kept or replanned. A
 driver (``run_episode`` with a SimulatedReality, or the HTTP service for a real robot)
 calls the two in turn. Episode accounting lives in ``coordinator.episode``, the transit
-to the pre-pose in ``coordinator.transit``; the rest (~430 lines) is the loop's steps,
+to the pre-pose in ``coordinator.transit``, what an observation does to the belief in
+``coordinator.reweighting``; the rest (~450 lines) is the loop's steps,
 which share the session's state.
 """
 from __future__ import annotations

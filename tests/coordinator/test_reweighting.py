@@ -140,7 +140,7 @@ def test_a_checkpoint_carries_the_filters_state_and_resumes_identically(per_bloc
     s = session(sizes_variation=per_block)
     _sequence(s)
     rng = np.random.default_rng(9)
-    for _ in range(8):                       # innovations with scatter: a model error to keep
+    for _ in range(12):                      # innovations with scatter: a model error to keep
         y = 0.041 + 0.004 * rng.standard_normal()
         s.reweighting.weigh(s.belief, "pickup(r,b1,init)", symbolic(s, np.ones(N, bool)), observed(y),
                             predictions(s, s.belief.particles[:, 0]))
@@ -277,3 +277,22 @@ def test_failures_l_cannot_explain_leave_the_posterior_calibrated():
     old = Session(stored_run_config({**session().config.model_dump(), **PRE_ISSUE_24_FILTER}))
     assert _five_pickups_of_a_fallen_cube(old) > 3.0
     assert _five_pickups_of_a_fallen_cube(session()) < 1.0
+
+
+def test_model_error_counts_only_readings_of_the_regime_every_particle_predicted():
+    """Readings where some particle predicted another outcome (a grasp that closed on air
+    against particles that grasp) are not innovations of the model error; readings where
+    every particle predicted the outcome are, and their scatter widens the sigma."""
+    s = session()
+    rng = np.random.default_rng(2)
+    for _ in range(12):
+        sizes = s.belief.particles[:, 0]
+        s.reweighting.weigh(s.belief, "pickup(r,b1,init)", symbolic(s, sizes > 0.045), observed(0.0),
+                            predictions(s, np.where(sizes > 0.045, 0.0, sizes)))
+    assert s.reweighting.model_error.history == [[]]
+    for _ in range(12):
+        y = 0.041 + 0.006 * rng.standard_normal()
+        s.reweighting.weigh(s.belief, "pickup(r,b1,init)", symbolic(s, np.ones(N, bool)), observed(y),
+                            predictions(s, s.belief.particles[:, 0]))
+    assert len(s.reweighting.model_error.history[0]) == 12
+    assert s.reweighting.sigma()[0] > 0.003
