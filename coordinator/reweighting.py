@@ -25,7 +25,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .belief import Belief, gaussian_log_likelihood
+from .belief import Belief, gaussian_log_likelihood, logsumexp
 from .block_weights import GroupWeights
 from .likelihood import (INFORMATIVE_NATS, OUTLIER_WIDTH_SIGMAS, ess_temper, perfect_log_likelihood,
                          robust_log_likelihood, update_information)
@@ -34,6 +34,10 @@ from .rejuvenation import EXPLAINED, LockInMonitor, action_blocks, inject_prior,
 from .run_config import RunConfig
 
 __all__ = ["Reweighting", "UpdateOutcome"]
+
+
+def _normalised(log_w: np.ndarray) -> np.ndarray:
+    return log_w - logsumexp(log_w)
 
 
 @dataclass(frozen=True)
@@ -86,6 +90,35 @@ class Reweighting:
         """The group an action's update goes to: the first block it names, else ALL."""
         named = action_blocks(action, self.block_names)
         return named[0] if named and groups.all > 0 else groups.all
+
+    def action_view(self, belief: Belief, action: str) -> tuple[np.ndarray, np.ndarray]:
+        """The log-weights and the columns of L an action concerns: with weights per block,
+        the columns of the block it names, weighted by that block's and the whole row's
+        weights (the other blocks' weights say nothing about it and only add noise);
+        otherwise every column and the belief's weights."""
+        every = np.arange(belief.dim)
+        if not self.regularised:
+            return belief.log_weights, every
+        groups = self._groups(belief)
+        g = self._group(action, groups)
+        if g == groups.all:
+            return belief.log_weights, every
+        return _normalised(groups.log_w[g] + groups.log_w[groups.all]), groups.groups[g]
+
+    def marginals(self, belief: Belief) -> tuple[np.ndarray, np.ndarray]:
+        """Weighted mean and std per column of L: each block's columns under its own and the
+        whole row's weights when weights are per block; else the belief's."""
+        if not self.regularised or not self._block_groups():
+            return belief.mean(), belief.std()
+        groups = self._groups(belief)
+        mean, std = np.zeros(belief.dim), np.zeros(belief.dim)
+        for g in range(groups.all):
+            w = np.exp(_normalised(groups.log_w[g] + groups.log_w[groups.all]))
+            cols = belief.particles[:, groups.groups[g]]
+            mean[groups.groups[g]] = w @ cols
+            dev = cols - w @ cols
+            std[groups.groups[g]] = np.sqrt(np.maximum(w @ (dev * dev), 0.0))
+        return mean, std
 
     # ----------------------------------------------------------------- likelihood
     def sigma(self) -> np.ndarray:

@@ -149,7 +149,7 @@ class Session:
         """The belief's weighted mean row of L (the prior's mean without a belief)."""
         if self.belief is None:
             return (self.low + self.high) / 2
-        return np.asarray(self.belief.weighted_mean(self.belief.particles, angular=()), dtype=np.float64)
+        return np.asarray(self.reweighting.marginals(self.belief)[0], dtype=np.float64)
 
     def believed_sizes(self) -> np.ndarray:
         return np.array(self._props(self.believed_row())["block_sizes"], dtype=np.float64)
@@ -187,12 +187,12 @@ class Session:
         mode = self.agent.grasp
         if mode == "belief":
             poses = self._particle_poses(config, action)
+            view, cols = self._action_belief(action)
             if self.config.pose_rule == "mean":         # the paper: weighted mean of all x_i
-                return self.belief.weighted_mean(poses, angular=(3,)), poses
-            keep = mode_mask(self.belief.particles, self.belief.weights, self.config.mode_bandwidth,
-                             scale=self._mode_scale())
-            sub = Belief(self.belief.particles[keep], self.belief.log_weights[keep],
-                         self.belief.low, self.belief.high)
+                return view.weighted_mean(poses, angular=(3,)), poses
+            keep = mode_mask(view.particles[:, cols], view.weights, self.config.mode_bandwidth,
+                             scale=self._mode_scale()[cols])
+            sub = Belief(view.particles[keep], view.log_weights[keep], view.low, view.high)
             return sub.weighted_mean(poses[keep], angular=(3,)), poses
         if mode == "random":
             if len(self.L.names) == 1:
@@ -202,6 +202,15 @@ class Session:
                 s = self.rng.uniform(low, high)
             return self.domain.action_pose(self._props(s), config, action), None
         return self.domain.action_pose(self._props(self.believed_row()), config, action), None
+
+    def _action_belief(self, action: str) -> tuple[Belief, np.ndarray]:
+        """The belief as `action` sees it and the columns of L it concerns: with weights per
+        block, the particles under its block's weights (``Reweighting.action_view``), else
+        the belief itself and every column."""
+        log_w, cols = self.reweighting.action_view(self.belief, action)
+        if log_w is self.belief.log_weights:
+            return self.belief, cols
+        return Belief(self.belief.particles, log_w, self.belief.low, self.belief.high), cols
 
     def _mode_scale(self) -> np.ndarray:
         """Per-dimension scale for the pose mode: each property's prior width over the
@@ -302,9 +311,9 @@ class Session:
             self._prediction = self._predicted(step, observation.state, res, sizes)
         update = self.reweighting.weigh(self.belief, step.action, loglik, observation.measurements,
                                         res["measurements"])
-        if self.agent.sim_experience:
+        if self.agent.sim_experience:      # weighted by how plausible each is for this action
             self.experience.add_simulated(before.state, step.action, res["states"], step.expected,
-                                          self.belief.weights)
+                                          self._action_belief(step.action)[0].weights)
         # (A point belief at the truth, known_properties, is never redrawn nor resized.)
         resampled, injected = self.reweighting.resample(self.belief, self.rng, step.action,
                                                         rejuvenate=not self.config.known_properties)
@@ -368,7 +377,7 @@ class Session:
         if self.belief is None:
             mean, std = self.believed_row(), np.zeros(self.dims)
         else:
-            mean, std = self.belief.mean(), self.belief.std()
+            mean, std = self.reweighting.marginals(self.belief)
         prior_std = (self.high - self.low) / np.sqrt(12.0)
         props = {name: {"mean": float(np.mean(mean[j * k:(j + 1) * k])),
                         "std": float(np.mean(std[j * k:(j + 1) * k])), "unit": unit,

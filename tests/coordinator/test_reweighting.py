@@ -220,10 +220,19 @@ def test_block_weights_keep_one_blocks_data_from_moving_another():
     joint weight vector the same data resample block 1's column too."""
     s = session(sizes_variation=True)
     col0 = s.belief.particles[:, 0].copy()
+    post0 = s.posterior()
     _pickups_of_block_2(s)
-    assert abs(s.belief.mean()[1] - 0.041) < 0.002
+    post = s.posterior()
+    assert abs(post["mean"][1] - 0.041) < 0.002 and post["std"][1] < 0.003
     assert np.array_equal(s.belief.particles[:, 0], col0)
     assert np.allclose(s.reweighting.weights.log_w[0], -math.log(N))
+    # Block 1's posterior (its column under its own weights) is exactly what it was; under
+    # the rows' joint weights it would move with block 2's data.
+    assert (post["mean"][0], post["std"][0]) == (post0["mean"][0], post0["std"][0])
+    assert abs(s.belief.mean()[0] - post0["mean"][0]) > 1e-4
+    # The pose of a pickup of block 2 is averaged under block 2's weights.
+    view, cols = s._action_belief("pickup(r,b2,init)")
+    assert list(cols) == [1] and abs(view.mean()[1] - 0.041) < 0.002
     joint = session(sizes_variation=True, block_weights=False)
     _pickups_of_block_2(joint)
     assert not np.array_equal(np.sort(joint.belief.particles[:, 0]), np.sort(col0))
