@@ -9,6 +9,7 @@ where the episode records have them, the informative / uninformative update coun
     python benchmarks/bench_calibration.py --suite density --seeds 1
     python benchmarks/bench_calibration.py --suite variation --seeds 1
     python benchmarks/bench_calibration.py --table /tmp/cal.jsonl      # the table of a file
+    python benchmarks/bench_calibration.py --compare before.jsonl after.jsonl --plot calibration.png
 
 `--set KEY=VALUE` sets any RunConfig field for every case (e.g. to compare a setting);
 cases already in the output file (same label and seed) are skipped, so a killed run resumes.
@@ -103,6 +104,82 @@ def table(rows: list[dict]) -> str:
     return "\n".join(lines)
 
 
+def compare(before: list[dict], after: list[dict]) -> str:
+    """Markdown: per case, seed and property (sizes-variation runs: the worst block and how
+    many blocks are covered) the posterior and its error in stds before and after, the
+    final utility (and the run's mean), then the coverage of each."""
+    lines = ["| case | seed | property | truth | before: mean +- std (error / std) | after: mean +- std "
+             "(error / std) | final utility (mean) before / after |", "|---|---|---|---|---|---|---|"]
+    index = {(r["label"], r["seed"]): r for r in after}
+    cov = {"before": [0, 0], "after": [0, 0]}
+    for b in before:
+        a = index.get((b["label"], b["seed"]))
+        if a is None:
+            continue
+        cells = []
+        for which, row in (("before", b), ("after", a)):
+            zs = z_scores(row)
+            cov[which][0] += sum(z <= 2.0 for *_, z in zs)
+            cov[which][1] += len(zs)
+            cells.append(zs)
+        for name in dict.fromkeys(n for n, *_ in cells[0]):
+            out = []
+            for zs in cells:
+                mine = [z for z in zs if z[0] == name]
+                _, t, m, sd, z = max(mine, key=lambda z: z[4])
+                scale = 1000.0 if name == "size" else 1.0
+                covered = (f"; block of {t * scale:.1f}; {sum(z[4] <= 2 for z in mine)}/{len(mine)} within 2 std"
+                           if len(mine) > 1 else "")
+                out.append((t * scale, f"{m * scale:.1f} +- {sd * scale:.1f} ({z:.1f}{covered})"))
+            many = len([z for z in cells[0] if z[0] == name]) > 1
+            tag = f"{name} (worst block)" if many else name
+            util = " / ".join(f"{r['utilities'][-1]:.0f} ({sum(r['utilities']) / len(r['utilities']):.0f})"
+                              for r in (b, a))
+            truth = "per block" if many else f"{out[0][0]:.1f}"
+            lines.append(f"| {b['label']} | {b['seed']} | {tag} | {truth} | {out[0][1]} | {out[1][1]} | {util} |")
+    pairs = [(b, index[(b["label"], b["seed"])]) for b in before if (b["label"], b["seed"]) in index]
+    for k, (which, (c, n)) in enumerate(cov.items()):
+        runs = [p[k] for p in pairs]
+        final = sum(r["utilities"][-1] for r in runs) / max(len(runs), 1)
+        mean = sum(sum(r["utilities"]) / len(r["utilities"]) for r in runs) / max(len(runs), 1)
+        lines.append(f"\n{which}: coverage {c}/{n} = {c / max(n, 1):.0%}; over {len(runs)} runs final utility "
+                     f"{final:.0f}, mean utility {mean:.0f}, particle-actions {sum(r['particle_actions'] for r in runs)}")
+    return "\n".join(lines)
+
+
+def plot(before: list[dict], after: list[dict], path: str) -> None:
+    """Each truth's posterior error in stds before and after (log scale), the 2-std line."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    index = {(r["label"], r["seed"]): r for r in after}
+    labels, zb, za = [], [], []
+    for b in before:
+        a = index.get((b["label"], b["seed"]))
+        if a is None:
+            continue
+        names = [n for n, *_ in z_scores(b)]
+        for k, ((name, *_, z0), (*_, z1)) in enumerate(zip(z_scores(b), z_scores(a))):
+            block = f" b{k % names.count(name) + 1}" if names.count(name) > 1 else ""
+            labels.append(f"{b['label']} s{b['seed']} {name}{block}")
+            zb.append(max(z0, 1e-2))
+            za.append(max(z1, 1e-2))
+    fig, ax = plt.subplots(figsize=(9, 0.16 * len(labels) + 1.5))
+    y = range(len(labels))
+    ax.scatter(zb, y, marker="x", color="tab:red", label="before")
+    ax.scatter(za, y, marker="o", facecolors="none", edgecolors="tab:blue", label="after")
+    ax.axvline(2.0, color="k", ls="--", lw=1, label="2 std")
+    ax.set_xscale("log")
+    ax.set_yticks(list(y), labels, fontsize=6)
+    ax.set_xlabel("|posterior mean - truth| / posterior std")
+    ax.legend(loc="lower right")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
 def _setting(text: str) -> tuple[str, object]:
     key, _, value = text.partition("=")
     try:
@@ -122,8 +199,17 @@ def main(argv=None) -> int:
     ap.add_argument("--only", default=None, help="only cases whose label contains this")
     ap.add_argument("--out", default=None, help="append one JSON line per run here")
     ap.add_argument("--table", default=None, metavar="FILE", help="print the table of FILE and exit")
+    ap.add_argument("--compare", nargs=2, default=None, metavar=("BEFORE", "AFTER"),
+                    help="print the before/after table of two files and exit")
+    ap.add_argument("--plot", default=None, metavar="PNG", help="with --compare: the errors as a figure")
     args = ap.parse_args(argv)
     args.set = dict(_setting(s) for s in args.set)
+    if args.compare:
+        rows = [[json.loads(line) for line in Path(f).read_text().splitlines() if line] for f in args.compare]
+        print(compare(*rows))
+        if args.plot:
+            plot(*rows, args.plot)
+        return 0
     if args.table:
         print(table([json.loads(line) for line in Path(args.table).read_text().splitlines() if line]))
         return 0

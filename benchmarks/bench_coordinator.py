@@ -52,7 +52,7 @@ def one_action(session: Session, start: Observation, action: str, res: dict, loo
     t0 = time.perf_counter()
     states = [decode_state(s) for s in res["states"]]
     loglik = session._symbolic_loglik(step, expected, states)
-    session.reweighting.weigh(session.belief, loglik, res["measurements"][0], res["measurements"])
+    session.reweighting.weigh(session.belief, action, loglik, res["measurements"][0], res["measurements"])
     session.experience.add_simulated(start.state, action, states, expected, session.belief.weights)
     session.reweighting.resample(session.belief, session.rng, action)
     t["reweight"] = time.perf_counter() - t0

@@ -25,7 +25,8 @@ Choices this module makes (and the rest of the loop can rely on):
   inflates the posterior variance by about 1 %, negligible; the floor keeps copies distinct
   when the posterior has collapsed onto one particle. Jittered values are reflected at the
   prior bounds (a triangle wave, so any magnitude lands inside) and then clipped against
-  rounding, so a particle never leaves [low, high].
+  rounding, so a particle never leaves [low, high]. (The session's filter resamples with the
+  Musso kernel on every particle instead, by default: ``coordinator.rejuvenation``.)
 """
 from __future__ import annotations
 
@@ -40,6 +41,7 @@ __all__ = [
     "symbolic_log_likelihood",
     "gaussian_log_likelihood",
     "systematic_resample",
+    "reflect_into",
     "logsumexp",
 ]
 
@@ -84,7 +86,7 @@ def systematic_resample(weights: np.ndarray, rng: np.random.Generator, n: int | 
     return np.searchsorted(cum, positions, side="right").astype(np.int64)
 
 
-def _reflect_into(x: np.ndarray, low: np.ndarray, high: np.ndarray) -> np.ndarray:
+def reflect_into(x: np.ndarray, low: np.ndarray, high: np.ndarray) -> np.ndarray:
     """Fold values into [low, high] by mirror reflection at the bounds (any distance)."""
     width = high - low
     y = np.mod(x - low, 2.0 * width)
@@ -301,7 +303,7 @@ class Belief:
             copies = self.particles[extra]
             if np.any(sigma > 0):
                 copies = copies + sigma * rng.standard_normal(copies.shape)
-                copies = _reflect_into(copies, self.low, self.high)
+                copies = reflect_into(copies, self.low, self.high)
             new[dead] = copies
         self.particles = new
         self.log_weights = np.full(self.n, -math.log(self.n))
@@ -320,7 +322,7 @@ class Belief:
         new = self.particles[ancestors].copy()
         copies = ~first
         if copies.any() and np.any(sigma > 0):
-            new[copies] = _reflect_into(new[copies] + sigma * rng.standard_normal((int(copies.sum()), self.dim)),
+            new[copies] = reflect_into(new[copies] + sigma * rng.standard_normal((int(copies.sum()), self.dim)),
                                         self.low, self.high)
         self.particles = new
         self.log_weights = np.full(n, -math.log(n))

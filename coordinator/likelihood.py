@@ -15,6 +15,15 @@ every hypothesis explains equally badly leaves the weights (almost) where they w
 instead of dragging the belief toward whichever hypothesis is least wrong. eps = 0 is the
 plain Gaussian (what the loop weighed before issue 24).
 
+An update may at most cut the effective sample size to ``ess_keep`` of what it was
+(``ess_temper``): a sharper one is tempered, its log-likelihood scaled by the largest
+alpha <= 1 that keeps that share, as adaptive tempering does in SMC samplers (Jasra,
+Stephens, Doucet and Tsagaris 2011). With 16 particles one sharp outcome otherwise leaves
+two or three hypotheses, and every property the outcome did not concern is then
+represented by their two or three values; an outcome that split the particles by chance
+(a stack that topples or not for reasons L does not hold) would decide the density
+posterior. The next observation of the same kind brings the rest of the information.
+
 Each update's information is its Kullback-Leibler divergence from the weights before
 (``update_information``); the session counts updates above ``INFORMATIVE_NATS`` as
 informative. ``normalised_evidence`` is how well the belief as a whole predicted an
@@ -28,7 +37,7 @@ import math
 import numpy as np
 
 __all__ = ["INFORMATIVE_NATS", "OUTLIER_WIDTH_SIGMAS", "robust_log_likelihood",
-           "perfect_log_likelihood", "update_information", "normalised_evidence"]
+           "perfect_log_likelihood", "update_information", "normalised_evidence", "ess_temper"]
 
 _LOG_SQRT_2PI = 0.5 * math.log(2.0 * math.pi)
 
@@ -138,3 +147,39 @@ def normalised_evidence(log_w_before: np.ndarray, log_lik: np.ndarray, perfect: 
     if m == -math.inf:
         return 0.0
     return min(math.exp(m) * float(np.sum(np.exp(terms - m))), 1.0)
+
+
+def _ess(log_w: np.ndarray) -> float:
+    w = np.exp(log_w - np.max(log_w))
+    w = w / w.sum()
+    return float(1.0 / np.dot(w, w))
+
+
+def ess_temper(log_w: np.ndarray, log_lik: np.ndarray, keep: float) -> float:
+    """The largest alpha in [0, 1] for which weights ``log_w + alpha log_lik`` keep an ESS of
+    at least `keep` x the ESS of `log_w` (1: the whole update keeps it, or keep is 0).
+
+    >>> log_w = np.full(4, -math.log(4))
+    >>> ess_temper(log_w, np.array([0.0, 0.0, -1.0, -1.0]), 0.5)
+    1.0
+    >>> round(ess_temper(log_w, np.array([0.0, -9.0, -9.0, -9.0]), 0.5), 3)   # 4 -> 2 at most
+    0.207
+    """
+    if keep <= 0.0:
+        return 1.0
+    lw = np.asarray(log_w, dtype=np.float64)
+    ll = np.asarray(log_lik, dtype=np.float64)
+    live = lw > -math.inf
+    if not np.all(np.isfinite(ll[live])):
+        return 1.0           # a zero likelihood: tempering cannot soften it, Belief.update handles it
+    target = keep * _ess(lw)
+    if _ess(lw + ll) >= target:
+        return 1.0
+    lo, hi = 0.0, 1.0        # ESS falls as alpha grows (the weights sharpen)
+    for _ in range(50):
+        mid = 0.5 * (lo + hi)
+        if _ess(lw + mid * ll) >= target:
+            lo = mid
+        else:
+            hi = mid
+    return lo

@@ -11,7 +11,9 @@ innovations of the belief's predictions,
 
 (the weights w before observation t: the predictive distribution) have the median of a
 chi-square with one degree of freedom (0.455), as they would if the belief's predictive
-distribution were right. The median, not the mean: an outlier that no particle explains
+distribution were right. The session counts the innovations of observations whose symbolic
+outcome every particle predicted (one regime: a grasp that closed on air where particles
+grasp is a mixture of regimes, not model error). The median, not the mean: an outlier that no particle explains
 (the robust likelihood's business) moves it by one rank, not by its square. sigma_model is
 0 until ``MIN_COUNT`` observations of the channel and whenever the innovations are no
 larger than the sensor explains; only a scatter of residuals inflates it (a constant bias
@@ -28,7 +30,7 @@ import numpy as np
 __all__ = ["CHI2_1_MEDIAN", "MIN_COUNT", "ModelError"]
 
 CHI2_1_MEDIAN = 0.454936423119572     # median of a chi-square with one degree of freedom
-MIN_COUNT = 5                         # innovations of a channel before sigma_model is estimated
+MIN_COUNT = 10                        # innovations of a channel before sigma_model is estimated
 MAX_HISTORY = 400                     # the latest innovations kept per channel
 
 

@@ -4,15 +4,19 @@ observation, fresh draws from the prior (issue 24).
 
 The session simulates the particles and scores the symbolic outcome; this module adds the
 measurement channels (``coordinator.likelihood``: a robust mixture, with the likelihood's
-sigma widened by the measured model error, ``coordinator.model_error``), updates the belief
-and says whether the update was informative, then resamples with the Musso kernel and
-watches for lock-in (``coordinator.rejuvenation``). Its state (model error, lock-in
-averages) goes into the session's checkpoint.
+sigma widened by the measured model error, ``coordinator.model_error``), tempers an update
+that would cut the effective sample size by more than ``ess_keep``, updates the belief and
+says whether the update was informative, then resamples with the Musso kernel and watches
+for lock-in (``coordinator.rejuvenation``). Under the sizes variation the weights are kept
+per block (``coordinator.block_weights``), an action's update going to the block it
+names. Its state (model error, lock-in averages, block weights) goes into the session's
+checkpoint.
 
 Settings (RunConfig): ``outlier_rate`` (0: the plain Gaussian), ``model_error``
-("online" | "none"), ``resample_kernel`` ("rpf" | "jitter": the fixed ``jitter``),
-``lock_in`` with ``lock_in_slow`` / ``lock_in_fast``. With 0, "none", "jitter" and off
-(what a stored config from before issue 24 gets) every number is what it was before.
+("online" | "none"), ``ess_keep`` (0: untempered), ``resample_kernel`` ("rpf" | "jitter":
+the fixed ``jitter`` on extra copies), ``block_weights``, ``lock_in`` with ``lock_in_slow``
+/ ``lock_in_fast``. With 0, "none", 0, "jitter", off and off (what a stored config from
+before issue 24 gets) every number is what it was before.
 """
 from __future__ import annotations
 
@@ -21,24 +25,30 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .belief import Belief, gaussian_log_likelihood
-from .likelihood import (INFORMATIVE_NATS, OUTLIER_WIDTH_SIGMAS, perfect_log_likelihood,
+from .belief import Belief, gaussian_log_likelihood, logsumexp
+from .block_weights import GroupWeights
+from .likelihood import (INFORMATIVE_NATS, OUTLIER_WIDTH_SIGMAS, ess_temper, perfect_log_likelihood,
                          robust_log_likelihood, update_information)
 from .model_error import ModelError
-from .rejuvenation import EXPLAINED, LockInMonitor, action_blocks, inject_prior, rpf_bandwidth
+from .rejuvenation import EXPLAINED, LockInMonitor, action_blocks, inject_prior, regularise, rpf_bandwidth
 from .run_config import RunConfig
 
 __all__ = ["Reweighting", "UpdateOutcome"]
 
 
+def _normalised(log_w: np.ndarray) -> np.ndarray:
+    return log_w - logsumexp(log_w)
+
+
 @dataclass(frozen=True)
 class UpdateOutcome:
-    """One update: its information (KL, nats), whether it counts as informative, and whether
-    the best particle explained the observation."""
+    """One update: its information (KL, nats), whether it counts as informative, whether
+    the best particle explained the observation, and the tempering it took (1: none)."""
 
     information: float
     informative: bool
     explained: bool
+    alpha: float = 1.0
 
 
 class Reweighting:
@@ -55,7 +65,60 @@ class Reweighting:
         self.per_block = bool(per_block)
         self.model_error = ModelError(self.sensor_sigma)
         self.lock_in = LockInMonitor(config.lock_in_slow, config.lock_in_fast)
+        self.weights: GroupWeights | None = None     # made from the belief on first use
         self._explained = True
+
+    @property
+    def regularised(self) -> bool:
+        """The filter of issue 24 (group weights, Musso kernel); else the one of before."""
+        return self.config.resample_kernel == "rpf"
+
+    # ----------------------------------------------------------------- groups of L
+    def _block_groups(self) -> list[np.ndarray]:
+        """Each block's columns of L (property-major rows) when weights are kept per block."""
+        if not (self.per_block and self.config.block_weights):
+            return []
+        n = len(self.block_names)
+        return [np.array([j * n + k for j in range(self.n_properties)]) for k in range(n)]
+
+    def _groups(self, belief: Belief) -> GroupWeights:
+        if self.weights is None or self.weights.log_w.shape[1] != belief.n:
+            self.weights = GroupWeights.for_belief(belief, self._block_groups())
+        return self.weights
+
+    def _group(self, action: str, groups: GroupWeights) -> int:
+        """The group an action's update goes to: the first block it names, else ALL."""
+        named = action_blocks(action, self.block_names)
+        return named[0] if named and groups.all > 0 else groups.all
+
+    def action_view(self, belief: Belief, action: str) -> tuple[np.ndarray, np.ndarray]:
+        """The log-weights and the columns of L an action concerns: with weights per block,
+        the columns of the block it names, weighted by that block's and the whole row's
+        weights (the other blocks' weights say nothing about it and only add noise);
+        otherwise every column and the belief's weights."""
+        every = np.arange(belief.dim)
+        if not self.regularised:
+            return belief.log_weights, every
+        groups = self._groups(belief)
+        g = self._group(action, groups)
+        if g == groups.all:
+            return belief.log_weights, every
+        return _normalised(groups.log_w[g] + groups.log_w[groups.all]), groups.groups[g]
+
+    def marginals(self, belief: Belief) -> tuple[np.ndarray, np.ndarray]:
+        """Weighted mean and std per column of L: each block's columns under its own and the
+        whole row's weights when weights are per block; else the belief's."""
+        if not self.regularised or not self._block_groups():
+            return belief.mean(), belief.std()
+        groups = self._groups(belief)
+        mean, std = np.zeros(belief.dim), np.zeros(belief.dim)
+        for g in range(groups.all):
+            w = np.exp(_normalised(groups.log_w[g] + groups.log_w[groups.all]))
+            cols = belief.particles[:, groups.groups[g]]
+            mean[groups.groups[g]] = w @ cols
+            dev = cols - w @ cols
+            std[groups.groups[g]] = np.sqrt(np.maximum(w @ (dev * dev), 0.0))
+        return mean, std
 
     # ----------------------------------------------------------------- likelihood
     def sigma(self) -> np.ndarray:
@@ -64,10 +127,10 @@ class Reweighting:
             return self.model_error.sigma()
         return self.sensor_sigma
 
-    def weigh(self, belief: Belief, symbolic_ll: np.ndarray, observed: np.ndarray,
+    def weigh(self, belief: Belief, action: str, symbolic_ll: np.ndarray, observed: np.ndarray,
               predicted: np.ndarray) -> UpdateOutcome:
-        """Bayes-update `belief` with the symbolic log-likelihood and the weighed channels of
-        `observed` (M,) against each particle's `predicted` (N, M)."""
+        """Bayes-update `belief` after `action` with the symbolic log-likelihood and the
+        weighed channels of `observed` (M,) against each particle's `predicted` (N, M)."""
         before = belief.log_weights.copy()
         ll = np.asarray(symbolic_ll, dtype=np.float64)
         perfect = math.log1p(-self.config.error_rate)
@@ -75,48 +138,94 @@ class Reweighting:
             obs, pred = observed[self.channels], predicted[:, self.channels]
             meas_ll, meas_perfect = self._measurement_ll(obs, pred)
             ll, perfect = ll + meas_ll, perfect + meas_perfect
-            if self.config.model_error == "online":     # the innovation of the weights before
+            if self.config.model_error == "online" and self._all_matched(symbolic_ll):
+                # The innovation of the weights before, where every particle predicted the
+                # observed outcome: a reading of another regime (fingers closed on air where
+                # particles grasp) is a mixture, not model error (early in a run such
+                # readings made half the innovations and inflated the opening's sigma to
+                # 29 mm).
                 self.model_error.observe(obs, pred, belief.weights)
-        best = math.exp(min(float(np.max(ll)) - perfect, 0.0))
-        belief.update(ll)
+        self._explained = math.exp(min(float(np.max(ll)) - perfect, 0.0)) >= EXPLAINED
+        alpha = self._update(belief, action, ll)
         kl = update_information(before, belief.log_weights)
-        self._explained = best >= EXPLAINED
-        return UpdateOutcome(kl, kl > INFORMATIVE_NATS, self._explained)
+        return UpdateOutcome(kl, kl > INFORMATIVE_NATS, self._explained, alpha)
+
+    def _update(self, belief: Belief, action: str, ll: np.ndarray) -> float:
+        """The (tempered) Bayes step, on the action's group when weights are per group."""
+        if not self.regularised:
+            alpha = ess_temper(belief.log_weights, ll, self.config.ess_keep)
+            belief.update(ll if alpha == 1.0 else alpha * ll)
+            return alpha
+        groups = self._groups(belief)
+        g = self._group(action, groups)
+        alpha = ess_temper(groups.log_w[g], ll, self.config.ess_keep)
+        step = ll if alpha == 1.0 else alpha * ll
+        belief.update(step)                          # validation and the degenerate flag
+        if not belief.last_update_degenerate:
+            groups.add(g, step)
+            belief.log_weights = groups.joint()
+        return alpha
+
+    def _all_matched(self, symbolic_ll: np.ndarray) -> bool:
+        """Whether every particle predicted the observed symbolic outcome."""
+        return bool(np.all(np.asarray(symbolic_ll) >= math.log1p(-self.config.error_rate) - 1e-12))
 
     def _measurement_ll(self, obs: np.ndarray, pred: np.ndarray) -> tuple[np.ndarray, float]:
         """Per-particle log-likelihood of the weighed channels, and an exact prediction's."""
         sigma, eps = self.sigma(), self.config.outlier_rate
         if eps == 0.0:        # the plain Gaussian, bit for bit what it was before issue 24
-            ll = gaussian_log_likelihood(obs, pred, sigma)
-            return ll, float(gaussian_log_likelihood(obs, np.where(np.isnan(obs), 0.0, obs)[None, :], sigma)[0])
+            exact = np.where(np.isnan(obs), 0.0, obs)[None, :]
+            return (gaussian_log_likelihood(obs, pred, sigma),
+                    float(gaussian_log_likelihood(obs, exact, sigma)[0]))
         width = OUTLIER_WIDTH_SIGMAS * self.sensor_sigma
         return (robust_log_likelihood(obs, pred, sigma, eps, width),
                 perfect_log_likelihood(obs, sigma, eps, width))
 
     # ----------------------------------------------------------------- resampling
-    def kernel(self, n: int, dim: int) -> float:
-        """The resampled copies' jitter, in posterior stds."""
-        return rpf_bandwidth(n, dim) if self.config.resample_kernel == "rpf" else self.config.jitter
-
     def resample(self, belief: Belief, rng: np.random.Generator, action: str,
                  rejuvenate: bool = True) -> tuple[bool, int]:
-        """Resample below ESS N/2; then, when the observation was unexplained, redraw the
-        lock-in monitor's share of rows from the prior. (resampled?, rows redrawn)."""
+        """Resample the action's group below ESS N/2; then, when the observation was
+        unexplained, redraw the lock-in monitor's share of that group's rows from the
+        prior. (resampled?, rows redrawn)."""
         c = self.config
-        h = self.kernel(belief.n, belief.dim)
-        resampled = belief.maybe_resample(rng, jitter=h, jitter_floor=c.jitter_floor)
+        if not self.regularised:
+            resampled = belief.maybe_resample(rng, jitter=c.jitter, jitter_floor=c.jitter_floor)
+            group, groups = None, None
+        else:
+            groups = self._groups(belief)
+            group = self._group(action, groups)
+            resampled = groups.ess(group) < 0.5 * belief.n
+            if resampled:
+                self._resample_group(groups, group, belief, rng)
         if not (c.lock_in and rejuvenate):
             return resampled, 0
         key, dims = self._lock_in_key(action, belief.dim)
         share = self.lock_in.observe(key, self._explained)
         if share <= 0.0 or dims.size == 0:
             return resampled, 0
-        injected = inject_prior(belief, share, dims, rng, h, c.jitter_floor)
+        if groups is None:
+            if not np.allclose(belief.log_weights, belief.log_weights[0]):
+                belief.resample(rng, jitter=c.jitter, jitter_floor=c.jitter_floor)
+        elif not np.allclose(groups.log_w[group], groups.log_w[group][0]):
+            self._resample_group(groups, group, belief, rng)     # uniform before the redraw
+        injected = inject_prior(belief, share, dims, rng)
         return resampled or injected > 0, injected
 
+    def _resample_group(self, groups: GroupWeights, g: int, belief: Belief, rng: np.random.Generator) -> None:
+        h = rpf_bandwidth(belief.n, groups.groups[g].size)
+        groups.resample(g, belief, rng, h, self.config.jitter_floor)
+
     def resample_to(self, belief: Belief, n: int, rng: np.random.Generator) -> None:
-        """Systematic resampling to `n` particles (the adaptive budget's step)."""
-        belief.resample_to(n, rng, jitter=self.kernel(n, belief.dim), jitter_floor=self.config.jitter_floor)
+        """Systematic resampling of whole rows to `n` particles (the adaptive budget's step);
+        every weight becomes uniform."""
+        c = self.config
+        if not self.regularised:
+            belief.resample_to(n, rng, jitter=c.jitter, jitter_floor=c.jitter_floor)
+            return
+        std = belief.std()
+        belief.resample_to(n, rng, jitter=0.0, jitter_floor=0.0)
+        regularise(belief, std, rpf_bandwidth(n, belief.dim), c.jitter_floor, rng)
+        self.weights = GroupWeights.for_belief(belief, self._block_groups())
 
     def _lock_in_key(self, action: str, dim: int) -> tuple[str, np.ndarray]:
         """Whose averages an action feeds and the dimensions of L a redraw replaces: the first
@@ -132,11 +241,15 @@ class Reweighting:
 
     # ----------------------------------------------------------------- checkpoints
     def to_dict(self) -> dict:
-        return {"model_error": self.model_error.to_dict(), "lock_in": self.lock_in.to_dict()}
+        return {"model_error": self.model_error.to_dict(), "lock_in": self.lock_in.to_dict(),
+                "weights": self.weights.to_dict() if self.weights is not None else None}
 
-    def load(self, data: dict | None) -> None:
-        """Restore `to_dict`'s state (None: a checkpoint from before issue 24, a fresh state)."""
+    def load(self, data: dict | None, dim: int) -> None:
+        """Restore `to_dict`'s state (None: a checkpoint from before issue 24, a fresh state;
+        the block weights are then made from the belief's, all in the whole-row group)."""
         data = data or {}
         self.model_error = ModelError.from_dict(data.get("model_error"), self.sensor_sigma)
         self.lock_in = LockInMonitor.from_dict(data.get("lock_in"), slow=self.config.lock_in_slow,
                                                fast=self.config.lock_in_fast)
+        weights = data.get("weights")
+        self.weights = GroupWeights.from_dict(weights, dim) if weights is not None else None

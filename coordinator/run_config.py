@@ -89,15 +89,22 @@ class RunConfig(BaseModel):
     # weighed channel's likelihood is (1 - outlier_rate) N(y; f(L_i), sigma) + outlier_rate x a
     # floor 50 sensor sigmas wide, so a reading no particle explains moves no weight (0: the
     # plain Gaussian). model_error "online" widens sigma by the scatter of the belief's
-    # innovations (sqrt(sensor^2 + model^2)). resample_kernel "rpf" jitters resampled copies by
-    # the Musso-Oudjane-Le Gland bandwidth (0.63 posterior stds at 16 particles and 2
-    # properties) instead of the fixed `jitter`. lock_in redraws particles (per block with the
-    # sizes variation) from the prior when no particle explains an observation, at the rate
-    # 1 - w_fast / w_slow of augmented MCL (averages with these rates). Stored settings from
-    # before these fields keep 0, "none", "jitter" and false (stored_run_config).
+    # innovations (sqrt(sensor^2 + model^2)). resample_kernel "rpf" moves every resampled
+    # particle by the Musso-Oudjane-Le Gland bandwidth (0.63 posterior stds at 16 particles
+    # and 2 properties) instead of the extra copies by the fixed `jitter`. lock_in redraws
+    # particles (per block with the sizes variation) from the prior when no particle explains
+    # an observation, at the rate 1 - w_fast / w_slow of augmented MCL (averages with these
+    # rates). Stored settings from before these fields keep 0, "none", 0, "jitter", false and
+    # false (stored_run_config).
     outlier_rate: float = Field(0.05, ge=0, lt=0.5)
     model_error: Literal["online", "none"] = "online"
+    # An update keeps at least this share of the effective sample size (a sharper one is
+    # tempered: its log-likelihood scaled down until it does); 0: untempered.
+    ess_keep: float = Field(0.5, ge=0, lt=1)
     resample_kernel: Literal["rpf", "jitter"] = "rpf"
+    # With the sizes variation (one entry of L per block): weights per block, an action's
+    # update going to the block it names (coordinator/block_weights.py); needs "rpf".
+    block_weights: bool = True
     lock_in: bool = True
     # Disjoint ranges keep the long-term average the slower one for any pair the schema
     # allows (a cross-field check would refuse schema-valid requests).
@@ -171,6 +178,13 @@ class RunConfig(BaseModel):
         return {**self.truth, "size": float(self.true_size)}
 
     @model_validator(mode="after")
+    def _filter_settings_fit(self) -> "RunConfig":
+        if self.block_weights and self.resample_kernel != "rpf":
+            raise ValueError("block_weights: needs resample_kernel \"rpf\" (set block_weights false "
+                             "for the fixed jitter)")
+        return self
+
+    @model_validator(mode="after")
     def _reality_fail_is_a_context(self) -> "RunConfig":
         if self.reality_fail is None:
             return self
@@ -237,8 +251,8 @@ def seed_stream(seed: int, stream: int) -> np.random.Generator:
 
 
 # What a stored config without the filter fields ran with (the same numbers, bit for bit).
-PRE_ISSUE_24_FILTER = {"outlier_rate": 0.0, "model_error": "none", "resample_kernel": "jitter",
-                       "lock_in": False}
+PRE_ISSUE_24_FILTER = {"outlier_rate": 0.0, "model_error": "none", "ess_keep": 0.0,
+                       "resample_kernel": "jitter", "block_weights": False, "lock_in": False}
 
 
 def stored_run_config(fields: dict) -> RunConfig:

@@ -6,7 +6,8 @@ particle worlds replay the action (one Ray call per shard), the belief is reweig
 resampled, the experience pool and T are updated, and the plan is kept or replanned. A
 driver (``run_episode`` with a SimulatedReality, or the HTTP service for a real robot)
 calls the two in turn. Episode accounting lives in ``coordinator.episode``, the transit
-to the pre-pose in ``coordinator.transit``; the rest (~445 lines) is the loop's steps,
+to the pre-pose in ``coordinator.transit``, what an observation does to the belief in
+``coordinator.reweighting``; the rest is the loop's steps,
 which share the session's state.
 """
 from __future__ import annotations
@@ -153,7 +154,7 @@ class Session:
         """The belief's weighted mean row of L (the prior's mean without a belief)."""
         if self.belief is None:
             return (self.low + self.high) / 2
-        return np.asarray(self.belief.weighted_mean(self.belief.particles, angular=()), dtype=np.float64)
+        return np.asarray(self.reweighting.marginals(self.belief)[0], dtype=np.float64)
 
     def believed_sizes(self) -> np.ndarray:
         return np.array(self._props(self.believed_row())["block_sizes"], dtype=np.float64)
@@ -191,13 +192,13 @@ class Session:
         mode = self.agent.grasp
         if mode == "belief":
             poses = self._particle_poses(config, action)
+            view, cols = self._action_belief(action)
             if self.config.pose_rule == "mean":         # the paper: weighted mean of all x_i
-                return self.belief.weighted_mean(poses, angular=(3,)), poses
-            keep = mode_mask(self.belief.particles, self.belief.weights, self.config.mode_bandwidth,
-                             scale=self._mode_scale())
-            keep = self._one_pose_class(keep, config, action)
-            sub = Belief(self.belief.particles[keep], self.belief.log_weights[keep],
-                         self.belief.low, self.belief.high)
+                return view.weighted_mean(poses, angular=(3,)), poses
+            keep = mode_mask(view.particles[:, cols], view.weights, self.config.mode_bandwidth,
+                             scale=self._mode_scale()[cols])
+            keep = self._one_pose_class(keep, view, config, action)
+            sub = Belief(view.particles[keep], view.log_weights[keep], view.low, view.high)
             return sub.weighted_mean(poses[keep], angular=(3,)), poses
         if mode == "random":
             if len(self.L.names) == 1:
@@ -208,13 +209,23 @@ class Session:
             return self.domain.action_pose(self._props(s), config, action), None
         return self.domain.action_pose(self._props(self.believed_row()), config, action), None
 
-    def _one_pose_class(self, keep: np.ndarray, config: Configuration, action: str) -> np.ndarray:
+    def _one_pose_class(self, keep: np.ndarray, view: Belief, config: Configuration,
+                        action: str) -> np.ndarray:
         """The mode's particles of one pose class (the domain's optional ``pose_classes``:
         a discrete choice of Y per row of L, such as the container's tray layout)."""
         classes = getattr(self.domain, "pose_classes", None)
         if classes is None:
             return keep
-        return heaviest_class(classes(self.belief.particles, config, action), self.belief.weights, keep)
+        return heaviest_class(classes(view.particles, config, action), view.weights, keep)
+
+    def _action_belief(self, action: str) -> tuple[Belief, np.ndarray]:
+        """The belief as `action` sees it and the columns of L it concerns: with weights per
+        block, the particles under its block's weights (``Reweighting.action_view``), else
+        the belief itself and every column."""
+        log_w, cols = self.reweighting.action_view(self.belief, action)
+        if log_w is self.belief.log_weights:
+            return self.belief, cols
+        return Belief(self.belief.particles, log_w, self.belief.low, self.belief.high), cols
 
     def _mode_scale(self) -> np.ndarray:
         """Per-dimension scale for the pose mode: each property's prior width over the
@@ -327,10 +338,11 @@ class Session:
         loglik = self._symbolic_loglik(step, observation.state, res["states"])
         if self.frames is not None:      # before the update: the weights that predicted
             self._prediction = self._predicted(step, observation.state, res, sizes)
-        update = self.reweighting.weigh(self.belief, loglik, observation.measurements, res["measurements"])
-        if self.agent.sim_experience:
+        update = self.reweighting.weigh(self.belief, step.action, loglik, observation.measurements,
+                                        res["measurements"])
+        if self.agent.sim_experience:      # weighted by how plausible each is for this action
             self.experience.add_simulated(before.state, step.action, res["states"], step.expected,
-                                          self.belief.weights)
+                                          self._action_belief(step.action)[0].weights)
         # (A point belief at the truth, known_properties, is never redrawn nor resized.)
         resampled, injected = self.reweighting.resample(self.belief, self.rng, step.action,
                                                         rejuvenate=not self.config.known_properties)
@@ -386,19 +398,20 @@ class Session:
         """size_mean/size_std (over the size dimensions), the raw per-dimension mean and
         std, and ``properties``: {name: {mean, std, unit, identified}} for every property of
         L; ``identified`` is false while the std is still over IDENTIFIED_STD_SHARE of the
-        prior's (the channels have not pinned it down: read the mean as a guess), and the
+        prior's (the channels have not pinned it down: read the mean as a guess; always
+        without a belief, whose mean is the prior's), and the
         measurement channels' likelihood sigma (``measurement_sigma``, sensor widened by
         the measured model error)."""
         k = self.n_blocks if self.per_block else 1
         if self.belief is None:
             mean, std = self.believed_row(), np.zeros(self.dims)
         else:
-            mean, std = self.belief.mean(), self.belief.std()
+            mean, std = self.reweighting.marginals(self.belief)
         prior_std = (self.high - self.low) / np.sqrt(12.0)
         props = {name: {"mean": float(np.mean(mean[j * k:(j + 1) * k])),
                         "std": float(np.mean(std[j * k:(j + 1) * k])), "unit": unit,
-                        "identified": bool(np.all(std[j * k:(j + 1) * k]
-                                                  <= IDENTIFIED_STD_SHARE * prior_std[j * k:(j + 1) * k]))}
+                        "identified": self.belief is not None and bool(np.all(
+                            std[j * k:(j + 1) * k] <= IDENTIFIED_STD_SHARE * prior_std[j * k:(j + 1) * k]))}
                  for j, (name, unit) in enumerate(zip(self.L.names, self.L.units))}
         out = {"size_mean": props["size"]["mean"], "size_std": props["size"]["std"]}
         if self.belief is not None:
@@ -452,7 +465,7 @@ class Session:
         session = cls(stored_run_config(data["config"]), shard_pool)
         if data["belief"] is not None:
             session.belief = Belief.from_dict(data["belief"])
-        session.reweighting.load(data.get("reweighting"))     # absent before issue 24
+        session.reweighting.load(data.get("reweighting"), session.dims)     # absent before issue 24
         session.experience = ExperiencePool.from_dict(data["experience"], session.task.context_of)
         session.transition = session._transition_model()
         session.rng.bit_generator.state = data["rng"]

@@ -186,7 +186,10 @@ class NextView(BaseModel):
 class ObservationResult(BaseModel):
     session_id: str
     report: dict[str, Any] = Field(description="action, success, observed state; ess and "
-                                               "resampled when the belief learns")
+                                               "resampled when the belief learns, with the "
+                                               "update's information (KL, nats), whether a "
+                                               "particle explained the outcome, and the rows "
+                                               "redrawn from the prior (injected)")
     episode_done: bool
     episode: dict[str, Any] | None = Field(None, description="the episode's record when it ended")
     next: StepView | None
