@@ -51,8 +51,10 @@ def _action_value(name: str, args: tuple[str, ...], state: frozenset[str],
     if name == "stack":
         p = float(model.p_stack[h])
         return -tm.attempt_cost(c["stack"], c["fail"], p), None
-    p = float(model.p_push[h - 1]) if h else 1.0
-    return -c["push"] - (1.0 - p) * c["fail"] + p * c["deliver"] * h, h
+    if not h:
+        return -c["push"], 0
+    redo = float(tm.redo_costs(model, classes, 0.0)[h])     # a toppled tower is rebuilt; no return push
+    return tm.push_value(c, float(model.p_push[h - 1]), h, redo), h
 
 
 def _evaluate(state: frozenset[str], actions: Sequence[str], model: tm._Model,

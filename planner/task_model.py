@@ -9,15 +9,20 @@ stack-and-push task half reuses the validation (``planner.stack_and_push``).
 Expected utility of a plan::
 
     sum over pickups and stacks a of  -attempt_cost(cost(a), fail, p(a))
-    + sum over pushes a of            -cost(a) - (1 - p(a)) * fail + p(a) * bonus(a)
+    + sum over pushes to goal a of    push_value(costs, p(a), k(a), redo_cost(k(a)))
+    - cost(push) per return push
 
 with p(a) from T in the action's context (pickup: the block's class; stack: the number of
-blocks already in the container; push to goal: its load k, bonus deliver * k; the return
-push and an empty push to goal: p = 1, bonus 0). A pickup or stack that fails has not
-happened: the plan goes on only once it is done, so it costs its expected number of
-attempts (``attempt_cost``, issue 24: charging a failure once, as if the action had had
-its effect anyway, kept a plan through a context the robot failed 47 times in a row). A
-failed push loses its delivery, which its bonus term prices.
+blocks already in the container; push to goal: its load k; the return push and an empty
+push to goal: p = 1, no delivery). A pickup or stack that fails has not happened: the plan
+goes on only once it is done, so it costs its expected number of attempts
+(``attempt_cost``, issue 24: charging a failure once, as if the action had had its effect
+anyway, kept a plan through a context the robot failed 47 times in a row). A push that
+fails spills its load, and the episode goes on until the blocks are delivered: the trip is
+rebuilt (its blocks picked up and stacked again, the container brought back) and pushed
+again, so a push of load k costs 1/p attempts, each failed one the fail cost plus
+``redo_cost(k)``, and delivers deliver * k once (``push_value``; issue 24: pricing a failed
+push as a lost delivery only kept a plan pushing 8 at p 0.39 at 49 mm).
 """
 from __future__ import annotations
 
@@ -85,6 +90,36 @@ def attempt_cost(cost, fail, p):
     q = np.maximum(np.asarray(p, dtype=np.float64), P_ATTEMPT_FLOOR)
     out = (cost + (1.0 - q) * fail) / q
     return float(out) if out.ndim == 0 else out
+
+
+def redo_costs(model: "_Model", classes: Mapping[str, str], back: float) -> np.ndarray:
+    """What rebuilding a trip of k = 0..N blocks costs after its push failed (index k):
+    the return push `back` (0 where the domain has none), k pickups at the mean expected
+    pickup cost over the task's blocks (which blocks spill is not known to the plan), and
+    the stacks onto 0..k-1 blocks, each at its expected number of attempts."""
+    c = model.costs
+    picks = [attempt_cost(c["pickup"], c["fail"], model.p_pickup[classes[b]]) for b in sorted(classes)]
+    mean_pick = math.fsum(picks) / len(picks) if picks else 0.0
+    stacks = attempt_cost(c["stack"], c["fail"], model.p_stack)
+    n = len(model.p_stack)
+    return back + mean_pick * np.arange(n + 1) + np.concatenate([[0.0], np.cumsum(stacks)])
+
+
+def push_value(costs: Mapping[str, float], p, load, redo):
+    """Expected utility of a push to goal of `load` blocks with success p, repeated until
+    it delivers: 1/q attempts at the push cost, 1/q - 1 failing at the fail cost plus
+    `redo` (the trip rebuilt), then deliver * load (q = p floored at P_ATTEMPT_FLOOR;
+    arrays work).
+
+    >>> push_value({"push": 30.0, "fail": 50.0, "deliver": 40.0}, 1.0, 2, 100.0)
+    50.0
+    >>> push_value({"push": 30.0, "fail": 50.0, "deliver": 40.0}, 0.5, 2, 100.0)
+    -90.0
+    """
+    q = np.maximum(np.asarray(p, dtype=np.float64), P_ATTEMPT_FLOOR)
+    out = (-attempt_cost(costs["push"], costs["fail"], q) - (1.0 / q - 1.0) * redo
+           + costs["deliver"] * np.asarray(load, dtype=np.float64))
+    return float(out) if np.ndim(out) == 0 else out
 
 
 def optimistic_transition(n_blocks: int) -> dict:
@@ -212,7 +247,8 @@ def _action_value(name: str, args: tuple[str, ...], state: frozenset[str], model
     if args[3] == "init" or loaded == 0:           # return push / empty push: p = 1, no bonus
         return -costs["push"], (0 if args[3] == "goal" else None)
     p = float(model.p_push[loaded - 1])
-    return -costs["push"] - (1.0 - p) * costs["fail"] + p * costs["deliver"] * loaded, loaded
+    redo = float(redo_costs(model, classes, costs["push"])[loaded])
+    return push_value(costs, p, loaded, redo), loaded
 
 
 def _evaluate(state: frozenset[str], actions: Sequence[str], model: _Model,

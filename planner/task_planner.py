@@ -27,7 +27,7 @@ from planner import symbolic
 from planner.task_model import (DEFAULT_CLASS, DEFAULT_COSTS, TRANSITION_FIELDS,  # noqa: F401
                                 Plan, PlanningError, _block_classes, _checked_state, _evaluate,
                                 _is_number, _Model, _validate_transition, attempt_cost,
-                                expected_utility, optimistic_transition)
+                                expected_utility, optimistic_transition, push_value, redo_costs)
 
 ENCODING = Path(__file__).with_name("asp") / "container.lp"
 DEFAULT_TIME_LIMIT_S = 30.0
@@ -145,8 +145,8 @@ def _scaled_weights(problem: _Problem, model: _Model, classes: Mapping[str, str]
     c = model.costs
     loads = np.arange(1, len(model.p_push) + 1)
     stack = np.rint(scale * attempt_cost(c["stack"], c["fail"], model.p_stack)).astype(np.int64)
-    push = np.rint(scale * (c["push"] + (1.0 - model.p_push) * c["fail"]
-                            - model.p_push * c["deliver"] * loads)).astype(np.int64)
+    redo = redo_costs(model, classes, c["push"] if problem.return_push else 0.0)[loads]
+    push = np.rint(-scale * push_value(c, model.p_push, loads, redo)).astype(np.int64)
     back = int(round(scale * c["push"]))
     pick = {k: int(round(scale * attempt_cost(c["pickup"], c["fail"], p)))
             for k, p in model.p_pickup.items()}

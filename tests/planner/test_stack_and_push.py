@@ -88,6 +88,16 @@ def attempt(cost: float, fail: float, p: float) -> float:
     return (cost + (1 - q) * fail) / q
 
 
+def _pushed(T: dict, h: int, c: dict) -> float:
+    """A push of a tower of h repeated until it delivers: 1/q pushes, 1/q - 1 of them
+    failing, each failure rebuilding the tower (h pickups, stacks onto 0..h-1; no return
+    push in this domain), then +deliver per block (q = p >= 0.02)."""
+    q = max(T["push"][h - 1], 0.02)
+    rebuild = h * attempt(c["pickup"], c["fail"], T["pickup"]) + sum(
+        attempt(c["stack"], c["fail"], T["stack"][j]) for j in range(h))
+    return -c["push"] / q - (1 / q - 1) * (c["fail"] + rebuild) + c["deliver"] * h
+
+
 def _bellman(state: frozenset[str], T: dict, costs: dict = DEFAULT_COSTS) -> float:
     """Max expected utility over every action sequence to the goal, by exact recursion over
     the symbolic model (each action's value as DESIGN section 3 defines it)."""
@@ -107,8 +117,7 @@ def _bellman(state: frozenset[str], T: dict, costs: dict = DEFAULT_COSTS) -> flo
                 p = T["stack"][h]
                 v = -attempt(c["stack"], c["fail"], p)
             else:
-                p = T["push"][h - 1]
-                v = -c["push"] - (1 - p) * c["fail"] + p * c["deliver"] * h
+                v = _pushed(T, h, c)
             values.append(v + best(sp.apply(s, action)))
         return max(values)
 
@@ -184,7 +193,7 @@ def _best_split(n: int, T: dict, c: dict = DEFAULT_COSTS) -> tuple[float, list[i
         v = n * -attempt(c["pickup"], c["fail"], T["pickup"])
         for k in loads:
             v += sum(-attempt(c["stack"], c["fail"], T["stack"][h]) for h in range(k))
-            v += -c["push"] - (1 - T["push"][k - 1]) * c["fail"] + T["push"][k - 1] * c["deliver"] * k
+            v += _pushed(T, k, c)
         best = max(best, (v, sorted(loads, reverse=True)))
     return best
 
