@@ -32,6 +32,7 @@ class EpisodeStats:
     uninformative_updates: int = 0    # ... and those that did not (every particle alike)
     rejuvenations: int = 0            # unexplained observations that redrew particles from the prior
     redrawn_particles: int = 0        # rows redrawn over them
+    dead_end: str | None = None       # why the planner found no way to the goal (episode ended there)
 
     def count_update(self, informative: bool, redrawn: int) -> None:
         """Tally one belief update: informative or not, and the rows lock-in redrew."""
@@ -81,6 +82,8 @@ class EpisodeStats:
             "uninformative_updates": self.uninformative_updates,
             "rejuvenations": self.rejuvenations,
             "redrawn_particles": self.redrawn_particles,
+            # the observed state from which no plan reaches the goal (None: none met)
+            "dead_end": self.dead_end,
         }
 
 

@@ -19,6 +19,7 @@ from typing import Iterator
 
 import numpy as np
 
+from planner.task_model import PlanningError
 from planner.terms import parse_term
 from sim_workers.configuration import Configuration
 from sim_workers.properties import SIZES_VARIATION_SCALE
@@ -172,7 +173,18 @@ class Session:
         return self.observation.state
 
     def episode_done(self) -> bool:
-        return self.task.is_goal(self.state) or self.stats.actions >= self.config.max_steps
+        return (self.task.is_goal(self.state) or self.stats.actions >= self.config.max_steps
+                or self.stats.dead_end is not None)
+
+    def _replan_or_end(self) -> None:
+        """Replan; a state from which the planner finds no way to the goal (a block caught
+        in the fingers with the container at goal, say) ends the episode there, recorded
+        as `dead_end`, instead of failing the run or the robot session."""
+        try:
+            self._replan()
+        except PlanningError as exc:
+            self.plan = []
+            self.stats.dead_end = str(exc)[:200]
 
     def _replan(self) -> None:
         t0 = time.perf_counter()
@@ -274,7 +286,9 @@ class Session:
         if self.episode_done():
             return None
         if not self.plan:
-            self._replan()
+            self._replan_or_end()
+            if self.stats.dead_end is not None:
+                return None
         action = self.plan[0]
         config = self.observation.configuration
         x, xs = self._real_pose(config, action)
@@ -311,7 +325,9 @@ class Session:
         if success:
             self.plan.pop(0)
         else:
-            self.plan = []       # step 6: replan from what was observed
+            self.plan = []       # step 6: replan from what was observed (now: it may end the episode)
+            if not self.episode_done():
+                self._replan_or_end()
         if self.episode_done():
             report["episode"] = self._finish_episode()
         return report

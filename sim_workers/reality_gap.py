@@ -1,9 +1,11 @@
 """The reality gap: how a "real" world differs from the one Y plans in (one place for it).
 
 Friction is scaled per world by U(1 +- friction); objects are placed with N(0, placement)
-clipped at 2 std and turned by U(+-yaw). The probe's trials and the coordinator's
-simulated reality (``coordinator.reality.SimulatedReality``) both draw from here, so the
-gap a probe measures is the gap the loop meets.
+clipped at 2 std and turned by U(+-yaw); a domain whose spec has ``push_time_jitter`` runs
+each real push U(1 +- jitter) times faster or slower than planned (``executed``). The
+probe's trials and the coordinator's simulated reality
+(``coordinator.reality.SimulatedReality``) both draw from here, so the gap a probe
+measures is the gap the loop meets.
 """
 from __future__ import annotations
 
@@ -46,3 +48,24 @@ def jitter_planar(rng: np.random.Generator, objects: np.ndarray, rows,
         objects[i, :2] += np.clip(rng.normal(0, placement_m, 2), -2 * placement_m, 2 * placement_m)
         objects[i, 3:] = quat_from_yaw(rng.uniform(-yaw_rad, yaw_rad))
     return objects
+
+
+def push_time_jitter(domain) -> float:
+    """The domain's per-push execution jitter (relative; 0 where its spec has none)."""
+    return float(getattr(domain.spec, "push_time_jitter", 0.0) or 0.0)
+
+
+def executed(traj: np.ndarray, action: str, rng: np.random.Generator, jitter: float) -> np.ndarray:
+    """The trajectory a real arm runs for `action`: a push's timing scaled by 1/e with e ~
+    U(1 +- jitter), so its speed scales by e and its accelerations by e^2, and a
+    force-limited stroke's limit (the last effort column) by e^2 with them; any other
+    action, or jitter 0, unchanged and without a draw (runs without the jitter keep their
+    random streams)."""
+    if jitter <= 0 or not action.startswith("push"):
+        return traj
+    e = float(rng.uniform(1.0 - jitter, 1.0 + jitter))
+    out = np.array(traj, dtype=np.float64, copy=True)
+    out[:, 0] = out[0, 0] + (out[:, 0] - out[0, 0]) / e
+    if out.shape[1] == 8:
+        out[:, 7] *= e * e
+    return out

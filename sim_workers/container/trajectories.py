@@ -83,4 +83,9 @@ def _action_trajectory(spec, config, action, key, transit):
     descend = tr.time_parameterize(np.array([pre, key]), 2 * spec.approach_speed)
     stroke = tr.trapezoid_stroke(key, end, spec.push_speed, spec.push_accel, 0.0)
     retreat = tr.time_parameterize(np.array([end, back, up]), spec.lift_speed)
-    return tr.concatenate(move, descend, stroke, retreat), t_pre
+    # Up and clear, the fingers open wide: a block that a failed push wedged between them
+    # drops instead of being carried off (issue 24: at 58 mm a tipped block rode up in the
+    # fingers with the container at goal, a state no plan leaves).
+    wide = up.copy(); wide[4] = spec.max_opening
+    release = tr.time_parameterize(np.array([up, wide]), 1.0, finger_speed=spec.finger_speed)
+    return tr.concatenate(move, descend, stroke, retreat, release), t_pre

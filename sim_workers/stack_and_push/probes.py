@@ -13,7 +13,7 @@ import numpy as np
 
 from ..configuration import Configuration, quat_from_yaw
 from ..grounded_world import GroundedWorld, act
-from ..reality_gap import PLACEMENT_JITTER_M, YAW_JITTER_RAD, jitter_planar
+from ..reality_gap import PLACEMENT_JITTER_M, YAW_JITTER_RAD, executed, jitter_planar, push_time_jitter
 
 PROBE_ACTIONS = ("pickup", "stack", "push", "stand", "built_stack", "built_push")
 STAND_S = 2.0            # how long a tower is left alone in the `stand` probe
@@ -26,6 +26,18 @@ BUILD_TRIES = 3
 def tower_atoms(k: int) -> set[str]:
     """The `on` chain of b1..bk stacked in order on the start site."""
     return {f"on(b{i + 1},{'start' if i == 0 else f'b{i}'})" for i in range(k)}
+
+
+def real_push(world: GroundedWorld, domain, config: Configuration, believed: dict,
+              rng: np.random.Generator):
+    """The tower pushed to the goal through Y at the believed properties, its timing as a
+    real arm runs it (``reality_gap.executed``: the simulated reality's per-push jitter)."""
+    action = "push(r,tower,start,goal)"
+    key = domain.action_pose(believed, config, action)
+    planned = domain.action_trajectory(config, action, key)
+    traj = executed(planned, action, rng, push_time_jitter(domain))
+    start = float(np.interp(domain.transit_end_time(config, action, key), planned[:, 0], traj[:, 0]))
+    return world.execute(traj, action, start_time=start)
 
 
 def tower_configuration(domain, sizes: np.ndarray, load_k: int, rng: np.random.Generator) -> Configuration:
@@ -77,7 +89,7 @@ def probe_trial(domain, action: str, true_size: float, believed_size: float, loa
             return f"is_holding(r,{b})" in out.state
         config = world.reset(tower_configuration(domain, sizes, load_k, rng), truth)
         if action == "push":
-            out = act(world, domain, config, believed, "push(r,tower,start,goal)")
+            out = real_push(world, domain, config, believed, rng)
             return all(f"is_in(b{i + 1},goal)" in out.state for i in range(load_k))
         if action == "stand":
             still = np.array([[0.0, *config.robot], [STAND_S, *config.robot]])
@@ -134,7 +146,7 @@ def built_probe_trial(domain, action: str, true_size: float, believed_size: floa
         if config is None:
             return False
         if action == "push":
-            out = act(world, domain, config, believed, "push(r,tower,start,goal)")
+            out = real_push(world, domain, config, believed, rng)
             return all(f"is_in(b{i + 1},goal)" in out.state for i in range(load_k))
         b = f"b{load_k + 1}"
         out = act(world, domain, config, believed, f"pickup(r,{b},init)")

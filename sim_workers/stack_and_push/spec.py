@@ -77,6 +77,12 @@ class StackAndPushSpec:
     push_speed: float = 0.30        # m/s, stroke cruise speed (probe-tuned, see probes.py)
     push_accel: float = 2.0         # m/s^2, speeding up
     push_decel: float = 2.0         # m/s^2, slowing down at the goal
+    # A real arm runs each push U(1 +- this) times faster or slower than planned (so its
+    # accelerations and a force-limited stroke's limit by the square): the simulated
+    # reality and the probes do (sim_workers.reality_gap.executed), Y and the particle
+    # worlds plan the nominal stroke. It grades the push's success by tower height at
+    # every size of the prior (issue 24; measured in README "Learning across the prior").
+    push_time_jitter: float = 0.30
     move_speed: float = 0.30
     approach_speed: float = 0.10    # m/s, the last 8 cm down to a grasp or release
     lift_speed: float = 0.30

@@ -20,7 +20,8 @@ NAMES = list(AGENTS)
 RECORD_KEYS = {"episode", "utility", "actions", "failures", "loads", "delivered", "plans",
                "posterior", "ess", "wall_s", "physics_s", "planning_s", "particle_actions",
                "particles_per_action", "transit_fallbacks", "transit_fallback_notes",
-               "informative_updates", "uninformative_updates", "rejuvenations", "redrawn_particles"}
+               "informative_updates", "uninformative_updates", "rejuvenations", "redrawn_particles",
+               "dead_end"}
 PARTICLES = 4
 
 
