@@ -352,3 +352,21 @@ def test_a_held_block_goes_over_a_taller_column_when_the_carry_height_is_too_low
     assert plan.strategy == "over_the_top", plan
     assert plan.path[1, 2] > 0.186 + size - domain.spec.grip_depth
     assert _touches_scene(domain, config, np.full(8, size), plan.path, held=1 + held, opening=size) == []
+
+
+def test_a_dead_end_state_ends_the_episode_with_its_reason():
+    # A block caught in the fingers with the container at goal: no plan reaches the goal
+    # (stacking needs the container at init, pushing it back an empty hand). The episode
+    # ends there, recorded, instead of failing the run or the robot's session.
+    from sim_workers.domains import load as load_world
+
+    s = Session(RunConfig(n_blocks=2, agent="tmoc", particles=4))
+    config = load_world("container", n_blocks=2).initial_configuration({"block_sizes": np.full(2, 0.04)})
+    stuck = frozenset({"is_in(c,goal)", "is_holding(r,b1)", "is_in(b2,init)"})
+    s.start_episode(Observation(config, stuck, np.zeros(0)))
+    assert s.next_step() is None and s.episode_done()
+    record = s._finish_episode()
+    assert "goal unreachable" in record["dead_end"] and record["actions"] == 0
+    s.start_episode(Observation(config, frozenset({"is_in(c,init)", "hand_empty(r)", "is_in(b1,init)",
+                                                   "is_in(b2,init)"}), np.zeros(0)))
+    assert s.next_step() is not None and s.stats.dead_end is None
