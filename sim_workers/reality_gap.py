@@ -57,15 +57,13 @@ def push_time_jitter(domain) -> float:
 
 def executed(traj: np.ndarray, action: str, rng: np.random.Generator, jitter: float) -> np.ndarray:
     """The trajectory a real arm runs for `action`: a push's timing scaled by 1/e with e ~
-    U(1 +- jitter), so its speed scales by e and its accelerations by e^2, and a
-    force-limited stroke's limit (the last effort column) by e^2 with them; any other
-    action, or jitter 0, unchanged and without a draw (runs without the jitter keep their
-    random streams)."""
+    U(1 +- jitter), so its speed scales by e and its accelerations by e^2; the efforts are
+    commands the wrist meets exactly (a force-limited stroke's limit still sets its pace).
+    Any other action, or jitter 0, unchanged and without a draw (runs without the jitter
+    keep their random streams)."""
     if jitter <= 0 or not action.startswith("push"):
         return traj
     e = float(rng.uniform(1.0 - jitter, 1.0 + jitter))
     out = np.array(traj, dtype=np.float64, copy=True)
     out[:, 0] = out[0, 0] + (out[:, 0] - out[0, 0]) / e
-    if out.shape[1] == 8:
-        out[:, 7] *= e * e
     return out
