@@ -85,9 +85,9 @@ def parse_state(atoms: Iterable[str] | str) -> frozenset[str]:
     blocks = sorted(where, key=block_index)
     if not blocks:
         raise ValueError("state: no blocks")
-    missing = [f"b{i}" for i in range(1, block_index(blocks[-1]) + 1) if f"b{i}" not in where]
-    if missing:
-        raise ValueError(f"state: block {missing[0]} is missing (blocks are b1..bN)")
+    missing = terms.first_missing(block_index(b) for b in blocks)
+    if missing is not None:
+        raise ValueError(f"state: block b{missing} is missing (blocks are b1..bN)")
     return frozenset(where.values()) | ({f"hand_empty({ROBOT})"} if empty else set())
 
 

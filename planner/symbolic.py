@@ -15,7 +15,7 @@ from __future__ import annotations
 import re
 from typing import Iterable
 
-from planner.terms import format_term, parse_term  # noqa: F401  (format_term: re-exported)
+from planner.terms import first_missing, format_term, parse_term  # noqa: F401  (format_term: re-exported)
 
 ROBOT = "r"
 CONTAINER = "c"
@@ -170,9 +170,9 @@ def check_state(state: Iterable[str]) -> None:
             raise ValueError(f"inconsistent state: block {block} is in several places: "
                              f"{', '.join(atoms)}")
     n = max(block_index(b) for b in where)
-    missing = [f"b{i}" for i in range(1, n + 1) if f"b{i}" not in where]
-    if missing:
-        raise ValueError(f"incomplete state: block {missing[0]} has no location "
+    missing = first_missing(block_index(b) for b in where)
+    if missing is not None:
+        raise ValueError(f"incomplete state: block b{missing} has no location "
                          f"(blocks must be b1..b{n}, each in exactly one place)")
     if len(container) != 1:
         raise ValueError("inconsistent state: the container needs exactly one of "
