@@ -143,6 +143,10 @@ def _probability(value: object, field: str) -> float:
 
 
 def _probabilities(value: object, field: str, n: int, meaning: str) -> np.ndarray:
+    # One block, one context: T gives an action whose only context is 0 as a number
+    # (coordinator.transition_model.to_planner), so a number stands for the list of one.
+    if n == 1 and _is_number(value):
+        return np.array([_probability(value, f"{field}[0]")])
     if isinstance(value, (str, bytes, Mapping)) or not isinstance(value, (Sequence, np.ndarray)):
         raise PlanningError(f"{field}: expected a list of {n} probabilities ({meaning}), "
                             f"got {value!r}")

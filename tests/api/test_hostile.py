@@ -11,6 +11,8 @@ from coordinator.reality import SimulatedReality
 from planner import stack_and_push_symbolic as sps
 from planner import symbolic as sy
 
+from .conftest import stream_events
+
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(300)]
 
 
@@ -38,3 +40,17 @@ def test_both_domains_name_the_first_missing_block_without_counting_to_the_last(
         sy.parse_state(["is_in(c,init)", "hand_empty(r)", "is_in(b1,init)", f"is_in({huge},init)"])
     with pytest.raises(ValueError, match="block b2 is missing"):
         sps.parse_state(["hand_empty(r)", "is_in(b1,init)", f"is_in({huge},init)"])
+
+
+@pytest.mark.parametrize("domain", ["container", "stack_and_push"])
+def test_one_block_is_planned(client, domain):
+    """Row 7: with n_blocks 1 every task failed (`stack: expected a list of 1
+    probabilities`: T gives an action whose only context is 0 as a number)."""
+    spec = {"agent": "tmoc", "domain": domain, "n_blocks": 1, "particles": 2, "episodes": 1,
+            "max_steps": 10, "seed": 1}
+    r = client.post("/v1/tasks", json=spec)
+    assert r.status_code == 202, r.text
+    events = stream_events(client, r.json()["id"])
+    assert events[-1]["data"]["status"] == "succeeded", events[-1]
+    episode = [e for e in events if e["event"] == "episode"][0]["data"]
+    assert episode["delivered"] == 1
