@@ -66,17 +66,38 @@ def register(sub) -> None:
     p.set_defaults(func=main)
 
 
+# A settings file is a few hundred bytes; anything near this is not one.
+CONFIG_MAX_BYTES = 1 << 20
+
+
+def _yaml_without_aliases(text: str):
+    """YAML as safe_load reads it, but refusing aliases: a few hundred bytes of nested
+    aliases expand to gigabytes (issue 25: 349 bytes, 11 s and 830 MB); settings need none."""
+    import yaml
+
+    class Loader(yaml.SafeLoader):
+        def compose_node(self, parent, index):
+            if self.check_event(yaml.AliasEvent):
+                mark = self.peek_event().start_mark
+                raise yaml.YAMLError(f"line {mark.line + 1}: aliases (*name) are not allowed in settings")
+            return super().compose_node(parent, index)
+
+    return yaml.load(text, Loader=Loader)  # noqa: S506 - a SafeLoader subclass
+
+
 def _config_file(path: str) -> dict:
     """The settings in a JSON or YAML file (a mapping); UsageError naming the file otherwise."""
     try:
-        text = Path(path).read_text()
+        with open(path, "rb") as f:
+            raw = f.read(CONFIG_MAX_BYTES + 1)
     except OSError as exc:
         raise UsageError(f"--config {path}: cannot read it ({exc.strerror})") from None
+    if len(raw) > CONFIG_MAX_BYTES:
+        raise UsageError(f"--config {path}: over {CONFIG_MAX_BYTES} bytes; not a settings file")
     try:
+        text = raw.decode("utf-8")
         if path.endswith((".yaml", ".yml")):
-            import yaml
-
-            data = yaml.safe_load(text)
+            data = _yaml_without_aliases(text)
         else:
             data = json.loads(text)
     except Exception as exc:  # noqa: BLE001 - any parse error is the user's file
@@ -146,7 +167,9 @@ def _config(args) -> RunConfig:
             where = f"--config {args.config}: {'.'.join(loc) or 'settings'}"
         else:
             where = "--" + (loc[0] if loc else "settings").replace("_", "-")
-        raise UsageError(f"{where}: {err['msg']} (got {err.get('input')!r})") from None
+        got = repr(err.get("input"))
+        got = got if len(got) <= 80 else got[:77] + "..."       # never the whole input back
+        raise UsageError(f"{where}: {err['msg']} (got {got})") from None
 
 
 def main(args) -> int:

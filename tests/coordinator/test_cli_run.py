@@ -83,3 +83,28 @@ def test_a_bad_config_file_exits_2_naming_the_setting(tmp_path, capsys, content,
     assert f"--config {f}" in err and needle in err and "Traceback" not in err
     assert main(["run", "--config", str(tmp_path / "missing.json")]) == 2
     assert "cannot read" in capsys.readouterr().err
+
+
+def test_a_billion_laughs_config_is_refused_in_one_line(tmp_path, capsys):
+    """Issue 25 row 10: 349 bytes of nested YAML aliases took 11 s and 830 MB (or a
+    MemoryError traceback), and the error repeated the whole expanded input."""
+    import time
+
+    rows = ['a: &a ["lol","lol","lol","lol","lol","lol","lol","lol","lol"]']
+    rows += [f"{b}: &{b} [{','.join(['*' + a] * 9)}]" for a, b in zip("abcdefg", "bcdefgh")]
+    bomb = tmp_path / "bomb.yaml"
+    bomb.write_text("\n".join(rows) + "\nparticles: *h\n")
+    t0 = time.perf_counter()
+    assert main(["run", "--config", str(bomb), "--print-config"]) == 2
+    assert time.perf_counter() - t0 < 2.0
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "aliases" in err[0] and "line 2" in err[0], err
+    big = tmp_path / "big.json"
+    big.write_text('{"particles": "' + "x" * 5000 + '"}')
+    assert main(["run", "--config", str(big), "--print-config"]) == 2
+    err = capsys.readouterr().err
+    assert "particles" in err and len(err) < 400, len(err)          # the value cut, not echoed
+    huge = tmp_path / "huge.json"
+    huge.write_bytes(b" " * ((1 << 20) + 1))
+    assert main(["run", "--config", str(huge)]) == 2
+    assert "not a settings file" in capsys.readouterr().err
