@@ -44,7 +44,10 @@ from sim_workers.shard import Shard, decode_state, remote_shard
 
 
 def init_ray(address: str | None = None, num_cpus: int = 2) -> dict:
-    """Join `address` (a running cluster) or start a local Ray with `num_cpus` CPUs."""
+    """Join `address` (a running cluster; "auto": the one on this machine) or start a
+    local Ray of our own with `num_cpus` CPUs. Without an address ``ray.init`` would join
+    any cluster already running on the machine, and refuse `num_cpus` there (issue 25: a
+    `ray start` beside `tmoc serve` turned every observation into a 500)."""
     import ray
 
     os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")
@@ -52,8 +55,8 @@ def init_ray(address: str | None = None, num_cpus: int = 2) -> dict:
         if address:
             ray.init(address=address, logging_level="ERROR", log_to_driver=False)
         else:
-            ray.init(num_cpus=num_cpus, include_dashboard=False, logging_level="ERROR",
-                     log_to_driver=False)
+            ray.init(address="local", num_cpus=num_cpus, include_dashboard=False,
+                     logging_level="ERROR", log_to_driver=False)
     return ray.cluster_resources()
 
 

@@ -2,7 +2,12 @@
 tests/api/conftest.py). Each test reproduces a row of the issue's table."""
 from __future__ import annotations
 
+import json
+import os
+import subprocess
+import sys
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -11,7 +16,7 @@ from coordinator.reality import SimulatedReality
 from planner import stack_and_push_symbolic as sps
 from planner import symbolic as sy
 
-from .conftest import stream_events
+from .conftest import free_port, stream_events, tmoc
 
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(300)]
 
@@ -54,3 +59,25 @@ def test_one_block_is_planned(client, domain):
     assert events[-1]["data"]["status"] == "succeeded", events[-1]
     episode = [e for e in events if e["event"] == "episode"][0]["data"]
     assert episode["delivered"] == 1
+
+
+def test_a_ray_cluster_already_on_the_machine_is_not_joined(tmp_path):
+    """Row 6: `ray.init()` without an address joins any cluster running on the machine
+    and refuses `num_cpus` there: beside a `ray start`, `tmoc serve` answered every
+    observation with a 500. The service starts its own Ray unless given --ray-address."""
+    ray_cli = Path(sys.executable).with_name("ray")
+    env = {**os.environ, "RAY_USAGE_STATS_ENABLED": "0"}
+    head = subprocess.Popen([str(ray_cli), "start", "--head", f"--port={free_port()}", "--num-cpus=1",
+                             "--include-dashboard=false", "--block", "--disable-usage-stats"],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=env)
+    try:
+        time.sleep(8)                     # the head's GCS is up
+        assert head.poll() is None
+        out = subprocess.run([*tmoc(), "run", "--particles", "2", "--episodes", "1", "--max-steps", "2",
+                              "--no-progress", "--out", str(tmp_path)], capture_output=True, text=True,
+                             timeout=240, env=env)
+        assert out.returncode == 0, out.stderr[-2000:]
+        assert json.loads((tmp_path / "result.json").read_text())["episodes"][0]["actions"] >= 1
+    finally:
+        head.terminate()
+        head.wait(timeout=60)
