@@ -79,7 +79,8 @@ def ray_cluster(neutral_cwd):
         here = os.getcwd()
         os.chdir(neutral_cwd)          # what Ray puts on the workers' sys.path
         try:
-            ray.init(num_cpus=2, include_dashboard=False, logging_level="ERROR",
+            # address "local": our own cluster, never one already running on the machine
+            ray.init(address="local", num_cpus=2, include_dashboard=False, logging_level="ERROR",
                      log_to_driver=False)
         finally:
             os.chdir(here)

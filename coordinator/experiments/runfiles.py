@@ -41,18 +41,43 @@ def _config_diff(stored: dict, wanted: dict) -> str:
     return ", ".join(f"{k}={stored.get(k)!r} (asked {wanted.get(k)!r})" for k in keys)
 
 
+# What a checkpoint needs to be continued (coordinator.session.Session.from_checkpoint).
+CHECKPOINT_KEYS = frozenset({"version", "config", "belief", "experience", "rng", "episode", "episodes",
+                             "particle_actions", "particle_steps"})
+
+
+def _well_formed(data: dict, config: RunConfig) -> bool:
+    """Whether a run file holds what resuming reads: a finished run every episode of
+    `config` (a dict each, with its utility) and a summary; a partial one a checkpoint at
+    an episode boundary short of the last (issue 25: `[]`, `{}`, or a run one episode
+    short, was reused as finished or failed with a traceback)."""
+    if "checkpoint" in data:
+        ck = data["checkpoint"]
+        sess = ck.get("session") if isinstance(ck, dict) else None
+        return (isinstance(sess, dict) and CHECKPOINT_KEYS <= set(sess) and "reality_rng" in ck
+                and isinstance(sess["episode"], int) and 0 < sess["episode"] < config.episodes
+                and isinstance(sess["episodes"], list) and len(sess["episodes"]) == sess["episode"])
+    eps = data.get("episodes")
+    return (isinstance(eps, list) and len(eps) == config.episodes
+            and all(isinstance(e, dict) and isinstance(e.get("utility"), (int, float)) for e in eps)
+            and isinstance(data.get("summary"), dict))
+
+
 def read_run(path: Path, config: RunConfig) -> dict | None:
     """A finished or partial run file if its config is `config`; ResumeError if it was made
-    with another config; None if unreadable (a torn write: recomputed)."""
+    with another config; None if unreadable or not a whole run (a torn write, a file
+    edited by hand: recomputed)."""
     try:
         data = json.loads(path.read_text())
     except (OSError, ValueError):
+        return None
+    if not isinstance(data, dict):
         return None
     wanted = jsonable(config.model_dump())
     if data.get("config") != wanted:
         raise ResumeError(f"{path} was made with other settings: "
                           f"{_config_diff(data.get('config') or {}, wanted)}")
-    return data
+    return data if _well_formed(data, config) else None
 
 
 def existing_runs(out: Path, spec: Spec) -> list[Path]:

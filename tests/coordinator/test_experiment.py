@@ -326,3 +326,28 @@ def test_compare_on_stack_and_push_uses_its_probes_and_plans(ray_cluster, tmp_pa
     stored = json.loads(next((out / "runs" / "compare-tmoc").glob("*.json")).read_text())
     assert stored["config"]["domain"] == "stack_and_push"
     assert [s["agent"] for s in summary["settings"].values()] == ["tmoc", "tmp_rl", "gp", "toep"]
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(300)
+def test_resume_recomputes_run_files_that_are_not_whole_runs(tiny_out, tmp_path, capsys):
+    """Issue 25 row 11: `--resume` over a run file holding `[]`, a checkpoint `{}`, or a
+    run one episode short gave tracebacks, or reused the short run as finished and left
+    half the report's rows out. Such files are recomputed; the CSV is what a clean run
+    writes."""
+    out = tmp_path / "resumed"
+    shutil.copytree(tiny_out, out)
+    files = sorted((out / "runs").glob("likelihood-*/*.json"))
+    assert len(files) == 4
+    files[0].write_text("[]")
+    short = json.loads(files[1].read_text())
+    short["episodes"] = short["episodes"][:-1]
+    files[1].write_text(json.dumps(short))
+    third = json.loads(files[2].read_text())
+    files[2].unlink()
+    files[2].with_suffix(".partial.json").write_text(json.dumps({"config": third["config"], "checkpoint": {}}))
+    capsys.readouterr()
+    assert main(["experiment", "likelihood", *TINY, "--seed", "3", "--out", str(out), "--resume"]) == 0
+    report = json.loads(capsys.readouterr().out)
+    assert (report["computed"], report["reused"]) == (3, 1)
+    assert (out / "likelihood.csv").read_text() == (tiny_out / "likelihood.csv").read_text()
