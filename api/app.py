@@ -98,6 +98,11 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.state.shard_pools = ShardPools(settings.ray_address, settings.n_shards)
     app.state.cookie_sessions = CookieSessions()
     add_middlewares(app, settings, app.state.cookie_sessions)
+    if settings.allowed_hosts is not None:
+        from starlette.middleware.trustedhost import TrustedHostMiddleware
+
+        # Outermost: a foreign Host costs nothing beyond its headers.
+        app.add_middleware(TrustedHostMiddleware, allowed_hosts=list(settings.allowed_hosts))
     add_exception_handlers(app)
 
     gate = [Depends(require_token)] if settings.token else []

@@ -20,6 +20,10 @@ class Settings:
     n_shards: int | None = None
     shutdown_grace_s: float = 5.0
     max_frames: int = 48          # scene pictures kept per task (0: none rendered)
+    # Host header names the server answers to (None: any). `tmoc serve` without a token
+    # sets the loopback names, its --host and --allowed-host: a DNS-rebinding page that
+    # reaches 127.0.0.1 under its own name gets a 400, not the API.
+    allowed_hosts: tuple[str, ...] | None = None
 
 
 __all__ = ["Settings"]

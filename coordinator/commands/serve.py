@@ -38,6 +38,9 @@ def register(sub) -> None:
                    help="scene pictures kept per task (the oldest go first; 0: none rendered)")
     p.add_argument("--log-level", default="info", choices=["critical", "error", "warning", "info", "debug"])
     p.add_argument("--no-access-log", action="store_true", help="do not log every request")
+    p.add_argument("--allowed-host", action="append", default=[], metavar="NAME",
+                   help="without TMOC_API_TOKEN, a Host name to answer besides localhost, "
+                        "127.0.0.1, ::1 and --host (repeatable; '*': any)")
     p.set_defaults(func=main)
 
 
@@ -77,6 +80,21 @@ def check_args(args) -> str | None:
         raise UsageError(f"--host {args.host}: without TMOC_API_TOKEN the service binds only to "
                          "loopback (127.0.0.1, ::1); set TMOC_API_TOKEN or pass --insecure")
     return token or None
+
+
+LOOPBACK_NAMES = ("localhost", "127.0.0.1", "::1")
+
+
+def allowed_hosts(args, token: str | None) -> tuple[str, ...] | None:
+    """The Host names a server without a token answers to (None: any; a token guards it).
+    Issue 25: without one, `Host: evil.example` reached the whole API (DNS rebinding)."""
+    extra = list(getattr(args, "allowed_host", []) or [])
+    if token or "*" in extra:
+        return None
+    names = [*LOOPBACK_NAMES, *extra]
+    if args.host not in ("0.0.0.0", "::", ""):
+        names.append(args.host)
+    return tuple(dict.fromkeys(names))
 
 
 def _server_class():
@@ -123,7 +141,7 @@ def main(args) -> int:
                         max_particles=args.max_particles, max_episodes=args.max_episodes,
                         max_steps=args.max_steps, max_queued=args.max_queued,
                         max_sessions=args.max_sessions, n_shards=args.shards,
-                        max_frames=args.max_frames)
+                        max_frames=args.max_frames, allowed_hosts=allowed_hosts(args, token))
     app = create_app(settings)
     config = uvicorn.Config(app, host=args.host, port=args.port, workers=1,
                             log_level=args.log_level, access_log=not args.no_access_log,

@@ -9,6 +9,7 @@ import sys
 import time
 from pathlib import Path
 
+import httpx
 import numpy as np
 import pytest
 
@@ -16,7 +17,7 @@ from coordinator.reality import SimulatedReality
 from planner import stack_and_push_symbolic as sps
 from planner import symbolic as sy
 
-from .conftest import free_port, stream_events, tmoc
+from .conftest import Server, free_port, stream_events, tmoc
 
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(300)]
 
@@ -81,3 +82,20 @@ def test_a_ray_cluster_already_on_the_machine_is_not_joined(tmp_path):
     finally:
         head.terminate()
         head.wait(timeout=60)
+
+
+def test_without_a_token_a_foreign_host_gets_400(tmp_path):
+    """Row 5: a server without a token answered `Host: evil.example:PORT` (a DNS-rebinding
+    page) with the whole API. It answers its loopback names, --host and --allowed-host."""
+    srv = Server(tmp_path / "open.sqlite", "--allowed-host", "robot.lan", token=None).start()
+    try:
+        port = srv.port
+        for host, code in ((f"evil.example:{port}", 400), (f"127.0.0.1:{port}", 200),
+                           (f"localhost:{port}", 200), ("robot.lan", 200)):
+            r = httpx.get(f"{srv.base}/v1/tasks", headers={"Host": host}, timeout=10)
+            assert r.status_code == code, (host, r.status_code, r.text)
+        r = httpx.post(f"{srv.base}/v1/tasks", json={"particles": 2}, headers={"Host": "evil.example"},
+                       timeout=10)
+        assert r.status_code == 400
+    finally:
+        srv.stop()
