@@ -19,6 +19,12 @@ class Notifier:
         self._subs.setdefault(key, set()).add(ev)
         return ev
 
+    def count(self, key: str | None = None) -> int:
+        """Open subscriptions of `key` (None: of every key)."""
+        if key is None:
+            return sum(len(subs) for subs in self._subs.values())
+        return len(self._subs.get(key, ()))
+
     def unsubscribe(self, key: str, ev: asyncio.Event) -> None:
         subs = self._subs.get(key)
         if subs is not None:

@@ -24,6 +24,9 @@ class Settings:
     # sets the loopback names, its --host and --allowed-host: a DNS-rebinding page that
     # reaches 127.0.0.1 under its own name gets a 400, not the API.
     allowed_hosts: tuple[str, ...] | None = None
+    # Open event streams, per task and in all (then 429): each holds a descriptor.
+    max_streams_per_task: int = 16
+    max_streams: int = 256
 
 
 __all__ = ["Settings"]

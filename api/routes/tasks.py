@@ -7,6 +7,7 @@ part of the OpenAPI schema; the other routes are shared (``routes``).
 # No `from __future__ import annotations`: FastAPI must see the real classes in signatures.
 import asyncio
 import json
+import weakref
 from typing import Annotated, Any
 
 from fastapi import APIRouter, Header, HTTPException, Query, Request
@@ -129,7 +130,7 @@ async def task_episodes(task_id: TaskId, store: StoreDep,
             responses={200: {"content": {"text/event-stream": {"schema": SSE_EVENT}},
                              "description": "`episode` events (id = episode index, data = the "
                                             "episode record) and `status` events; the stream "
-                                            "ends after the final status"}, **error_responses(404)},
+                                            "ends after the final status"}, **error_responses(404, 429)},
             response_class=StreamingResponse)
 async def task_events(request: Request, task_id: TaskId, settings: SettingsDep, store: StoreDep,
                       worker: TaskWorkerDep, notifier: NotifierDep, shutting_down: ShuttingDownDep,
@@ -153,9 +154,17 @@ async def task_events(request: Request, task_id: TaskId, settings: SettingsDep, 
                                  "expected an episode index (integer >= -1)", "int_parsing")
     if store.task_status(task_id) is None:
         raise HTTPException(404, f"task {task_id!r}: no such task")
+    # Each open stream holds a descriptor: capped per task and in all (issue 25: 1500
+    # streams on one task were all accepted). Counted when subscribed, here on the loop,
+    # so a burst cannot pass the check together.
+    if (notifier.count(task_id) >= settings.max_streams_per_task
+            or notifier.count() >= settings.max_streams):
+        raise HTTPException(429, f"too many open event streams (at most {settings.max_streams_per_task} "
+                                 f"per task, {settings.max_streams} in all): close one and retry",
+                            headers={"Retry-After": "5"})
+    ev = notifier.subscribe(task_id)
 
     async def stream():
-        ev = notifier.subscribe(task_id)
         try:
             yield "retry: 2000\n\n"
             last, last_status = start, None
@@ -180,7 +189,10 @@ async def task_events(request: Request, task_id: TaskId, settings: SettingsDep, 
         finally:
             notifier.unsubscribe(task_id, ev)
 
-    return StreamingResponse(stream(), media_type="text/event-stream",
+    body = stream()
+    # A stream that never starts (the client left first) never runs its finally.
+    weakref.finalize(body, notifier.unsubscribe, task_id, ev)
+    return StreamingResponse(body, media_type="text/event-stream",
                              headers={"Cache-Control": "no-cache", "X-Accel-Buffering": "no"})
 
 

@@ -38,6 +38,8 @@ def register(sub) -> None:
                    help="scene pictures kept per task (the oldest go first; 0: none rendered)")
     p.add_argument("--log-level", default="info", choices=["critical", "error", "warning", "info", "debug"])
     p.add_argument("--no-access-log", action="store_true", help="do not log every request")
+    p.add_argument("--max-connections", type=int, default=1024,
+                   help="open connections before new ones get 503 (uvicorn's limit_concurrency)")
     p.add_argument("--allowed-host", action="append", default=[], metavar="NAME",
                    help="without TMOC_API_TOKEN, a Host name to answer besides localhost, "
                         "127.0.0.1, ::1 and --host (repeatable; '*': any)")
@@ -61,8 +63,9 @@ def check_args(args) -> str | None:
     """Validate the flags; returns the API token (None: no auth)."""
     if not 0 <= args.port <= 65535:
         raise UsageError(f"--port: {args.port} is outside [0, 65535]")
-    for flag in ("max_particles", "max_episodes", "max_steps", "max_queued", "max_sessions"):
-        if getattr(args, flag) < 1:
+    for flag in ("max_particles", "max_episodes", "max_steps", "max_queued", "max_sessions",
+                 "max_connections"):
+        if getattr(args, flag, 1) < 1:
             raise UsageError(f"--{flag.replace('_', '-')}: must be at least 1 (got {getattr(args, flag)})")
     for flag, field in (("max_particles", "particles"), ("max_episodes", "episodes"), ("max_steps", "max_steps")):
         most = field_bounds(field)[1]              # RunConfig's limit: the one place for it
@@ -145,7 +148,8 @@ def main(args) -> int:
     app = create_app(settings)
     config = uvicorn.Config(app, host=args.host, port=args.port, workers=1,
                             log_level=args.log_level, access_log=not args.no_access_log,
-                            timeout_graceful_shutdown=10, lifespan="on")
+                            timeout_graceful_shutdown=10, lifespan="on",
+                            limit_concurrency=args.max_connections)
     server = _Server(config, app)
     try:
         server.run()

@@ -99,3 +99,29 @@ def test_without_a_token_a_foreign_host_gets_400(tmp_path):
         assert r.status_code == 400
     finally:
         srv.stop()
+
+
+def test_event_streams_are_capped_per_task(tmp_path):
+    """Row 9: 1500 open event streams on one task were all accepted (1500 descriptors:
+    two clients could lock everyone out). 16 per task, 256 in all, then 429."""
+    srv = Server(tmp_path / "streams.sqlite", token=None).start()
+    try:
+        limits = httpx.Limits(max_connections=40, max_keepalive_connections=0)
+        with httpx.Client(base_url=srv.base, timeout=30, limits=limits) as c:
+            r = c.post("/v1/tasks", json={"particles": 2, "episodes": 200, "max_steps": 60, "seed": 1})
+            assert r.status_code == 202, r.text
+            tid = r.json()["id"]
+            streams = [c.stream("GET", f"/v1/tasks/{tid}/events") for _ in range(16)]
+            opened = [s.__enter__() for s in streams]
+            assert all(r.status_code == 200 for r in opened)
+            extra = c.get(f"/v1/tasks/{tid}/events")
+            assert extra.status_code == 429 and extra.headers["retry-after"] == "5", extra.text
+            streams[0].__exit__(None, None, None)                 # one closed: room for one
+            time.sleep(0.5)
+            with c.stream("GET", f"/v1/tasks/{tid}/events") as again:
+                assert again.status_code == 200
+            assert c.delete(f"/v1/tasks/{tid}").status_code in (200, 202)
+            for s in streams[1:]:
+                s.__exit__(None, None, None)
+    finally:
+        srv.stop()
