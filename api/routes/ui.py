@@ -7,13 +7,15 @@ the gated /v1 routes. Files are read once, on import, so no route touches the di
 """
 # No `from __future__ import annotations`: FastAPI must see the real classes in signatures.
 import json
+import math
+import time
 from importlib import resources
 from urllib.parse import parse_qs
 
 from fastapi import APIRouter, HTTPException, Path, Request
 from fastapi.responses import HTMLResponse, JSONResponse, RedirectResponse, Response
 
-from ..auth import COOKIE, SESSION_TTL_S, session_id, token_ok
+from ..auth import COOKIE, SESSION_TTL_S, LoginThrottle, session_id, token_ok
 from ..deps import CookieSessionsDep, SettingsDep
 
 TYPES = {".html": "text/html; charset=utf-8", ".js": "text/javascript; charset=utf-8",
@@ -86,11 +88,20 @@ async def login(request: Request, settings: SettingsDep, sessions: CookieSession
     if not token:
         return JSONResponse({"detail": "this server has no token (TMOC_API_TOKEN): no sign-in "
                                        "needed"}, 409)
+    throttle = getattr(request.app.state, "login_throttle", None)
+    if throttle is None:
+        throttle = request.app.state.login_throttle = LoginThrottle()
+    address = request.client.host if request.client else ""
+    wait = throttle.retry_after(address, time.monotonic())
+    if wait is not None:
+        raise HTTPException(429, "too many failed sign-ins: wait and retry",
+                            headers={"Retry-After": str(max(1, math.ceil(wait)))})
     fields = await _login_fields(request)
     as_json = "json" in request.headers.get("content-type", "").lower()
     if not fields.get("token"):
         raise HTTPException(422, "token: missing")
     if not token_ok(fields["token"], token):
+        throttle.failed(address, time.monotonic())
         if as_json:
             return JSONResponse({"detail": "token: invalid"}, 401, headers={"WWW-Authenticate": "Bearer"})
         return HTMLResponse(_failed_page("The token is not this server's."), 401,

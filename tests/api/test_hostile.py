@@ -125,3 +125,19 @@ def test_event_streams_are_capped_per_task(tmp_path):
                 s.__exit__(None, None, None)
     finally:
         srv.stop()
+
+
+def test_wrong_sign_ins_are_throttled(tmp_path):
+    """Row 12: 2000 wrong tokens at POST /ui/login went through at 736 a second. After 10
+    failures a minute from one address it answers 429 with Retry-After, even to the token."""
+    srv = Server(tmp_path / "login.sqlite").start()
+    try:
+        with httpx.Client(base_url=srv.base, timeout=10) as c:
+            codes = [c.post("/ui/login", json={"token": f"wrong-{i}"}).status_code for i in range(10)]
+            assert codes == [401] * 10
+            r = c.post("/ui/login", json={"token": "wrong-again"})
+            assert r.status_code == 429 and 1 <= int(r.headers["retry-after"]) <= 60, r.text
+            assert c.post("/ui/login", json={"token": srv.token}).status_code == 429
+            assert c.get("/v1/tasks", headers=srv.headers).status_code == 200   # the API is not locked
+    finally:
+        srv.stop()
