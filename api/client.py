@@ -53,8 +53,28 @@ class TMOCClient:
         self.close()
 
     # -- plumbing ------------------------------------------------------------------------
+    # How long a call waits out "a step is in progress" (409 with Retry-After: the server
+    # answers at once instead of parking a thread behind the step).
+    busy_wait_s: float = 600.0
+
+    def _send(self, method: str, path: str, **kw) -> httpx.Response:
+        """One request; an idempotent one (GET, DELETE) is sent again after a transport
+        error, such as a keep-alive connection the server closed while idle."""
+        for attempt in range(4):
+            try:
+                return self._http.request(method, path, **kw)
+            except httpx.TransportError:
+                if method not in ("GET", "DELETE") or attempt == 3:
+                    raise
+                time.sleep(0.2 * (attempt + 1))
+        raise AssertionError("unreachable")
+
     def _call(self, method: str, path: str, **kw) -> Any:
-        r = self._http.request(method, path, **kw)
+        deadline = time.monotonic() + self.busy_wait_s
+        r = self._send(method, path, **kw)
+        while r.status_code == 409 and "retry-after" in r.headers and time.monotonic() < deadline:
+            time.sleep(min(float(r.headers["retry-after"]), 5.0))
+            r = self._send(method, path, **kw)
         if r.status_code >= 400:
             try:
                 body = r.json()

@@ -11,6 +11,7 @@ from __future__ import annotations
 import json
 import threading
 import weakref
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -29,6 +30,16 @@ class SessionConflict(Exception):
     def __init__(self, message: str, field: str | None = None) -> None:
         super().__init__(message)
         self.field = field
+
+
+class SessionBusy(SessionConflict):
+    """Another request holds the session (a step in progress): HTTP 409 with Retry-After,
+    at once or after at most LOCK_WAIT_S, never a pool thread parked behind the step."""
+
+
+# How long a request waits for a session another request holds (a pool thread waits
+# meanwhile: issue 25, 45 GETs of /next behind one 256-particle step used up all 40).
+LOCK_WAIT_S = 0.25
 
 
 class SessionGone(Exception):
@@ -67,6 +78,23 @@ class SessionManager:
                 lock = threading.Lock()
                 self._locks[session_id] = lock
             return lock
+
+    @contextmanager
+    def _locked(self, session_id: str):
+        """The session's lock, waited for at most LOCK_WAIT_S (SessionBusy after)."""
+        lock = self._lock_for(session_id)
+        if not lock.acquire(timeout=LOCK_WAIT_S):
+            raise SessionBusy(f"session {session_id!r}: a step is in progress; retry in a moment")
+        try:
+            yield lock
+        finally:
+            lock.release()
+
+    def busy(self, session_id: str) -> bool:
+        """Whether a request holds the session now (read on the event loop, no thread)."""
+        with self._guard:
+            lock = self._locks.get(session_id)
+        return lock is not None and lock.locked()
 
     def held_locks(self) -> int:
         """Per-session locks alive now (for the soak test: must not grow with traffic)."""
@@ -187,7 +215,7 @@ class SessionManager:
         return session_id, nxt
 
     def start_episode(self, session_id: str, initial: dict) -> tuple[int, dict | None]:
-        with self._lock_for(session_id):
+        with self._locked(session_id):
             live = self._get(session_id)
             s = live.session
             if live.status == "finished" or s.episode >= s.config.episodes:
@@ -224,7 +252,7 @@ class SessionManager:
                 "initial observation")
 
     def next(self, session_id: str) -> tuple[int, dict | None]:
-        with self._lock_for(session_id):
+        with self._locked(session_id):
             live = self._get(session_id)
             s = live.session
             if not self._in_episode(live):
@@ -251,7 +279,7 @@ class SessionManager:
         return last["reply"]
 
     def observe(self, session_id: str, body: dict) -> dict:
-        with self._lock_for(session_id):
+        with self._locked(session_id):
             live = self._get(session_id)
             s = live.session
             replay = self._replay(live, body)

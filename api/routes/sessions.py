@@ -15,11 +15,13 @@ from .. import schemas as S
 from .. import views
 from ..deps import SessionId, SessionsDep, StoreDep, session_or_404
 from ..errors import error_responses, refuse_invalid_config
-from ..sessions import SessionConflict, SessionGone
+from ..sessions import SessionBusy, SessionConflict, SessionGone
 from ..store import QueueFull
 
 
 def _conflict(exc: SessionConflict) -> HTTPException:
+    if isinstance(exc, SessionBusy):
+        return HTTPException(409, str(exc), headers={"Retry-After": "1"})
     return HTTPException(409, str(exc))
 
 
@@ -79,6 +81,9 @@ async def close_session(session_id: SessionId, store: StoreDep, sessions: Sessio
 
 
 async def _session_call(fn, *args):
+    sessions = fn.__self__
+    if sessions.busy(args[0]):           # answered on the loop: no pool thread waits
+        raise _conflict(SessionBusy(f"session {args[0]!r}: a step is in progress; retry in a moment"))
     try:
         return await run_in_threadpool(fn, *args)
     except SessionGone:

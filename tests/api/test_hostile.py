@@ -141,3 +141,43 @@ def test_wrong_sign_ins_are_throttled(tmp_path):
             assert c.get("/v1/tasks", headers=srv.headers).status_code == 200   # the API is not locked
     finally:
         srv.stop()
+
+
+def test_a_busy_session_does_not_hold_the_thread_pool(server, client):
+    """Row 2: one observation of many particles in flight and 45 concurrent GETs of /next
+    on that session used up the 40 pool threads: /health, the task list and other sessions
+    waited until the step ended. Now /next answers at once (409, Retry-After) while the
+    step runs, and everything else stays fast."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    robot = SimulatedReality("container", {"n_blocks": 8}, {"block_sizes": np.full(8, 0.045)})
+    try:
+        start = robot.start_episode(np.random.default_rng(0))
+        r = client.post("/v1/sessions", json={"particles": 64, "particle_budget": "fixed", "episodes": 1,
+                                              "max_steps": 5, "observation": {"configuration": start.configuration.to_dict()}})
+        assert r.status_code == 201, r.text
+        sid, step = r.json()["id"], r.json()["next"]
+        out = robot.execute(np.array(step["trajectory"]), step["action"])
+    finally:
+        robot.close()
+    body = {"action": step["action"], "step_id": step["step_id"], "configuration": out.configuration.to_dict()}
+    headers = server.headers
+
+    def get(path):
+        t0 = time.perf_counter()
+        r = httpx.get(server.base + path, headers=headers, timeout=60)
+        return r.status_code, time.perf_counter() - t0
+
+    with ThreadPoolExecutor(max_workers=50) as pool:
+        step_done = pool.submit(httpx.post, f"{server.base}/v1/sessions/{sid}/observations", json=body,
+                                headers=headers, timeout=300)
+        time.sleep(0.3)                                           # the step is under way
+        nexts = [pool.submit(get, f"/v1/sessions/{sid}/next") for _ in range(45)]
+        time.sleep(0.2)
+        health = get("/health")
+        tasks = get("/v1/tasks")
+        answered = [f.result() for f in nexts]
+        assert step_done.result().status_code == 200
+    assert health[1] < 0.5 and tasks[1] < 0.5, (health, tasks)
+    assert all(code in (200, 409) for code, _ in answered), answered
+    assert max(t for _, t in answered) < 2.0, sorted(t for _, t in answered)[-5:]
