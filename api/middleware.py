@@ -18,6 +18,14 @@ class BodyLimit:
     validating 300k unknown keys stalled the event loop for seconds), then hand the
     buffered body to the app."""
 
+    # Sign-in and sign-out bodies are a token and a page name: a few hundred bytes. These
+    # paths are open (no token needed), so a big body there costs the reader nothing.
+    SMALL_PATHS = {"/ui/login": 4096, "/ui/logout": 4096}
+    # JSON objects and arrays in one body: no route takes more than a few hundred; counted
+    # in C (bytes.count) before any parse (issue 25: 4 MiB of `[[{}],[{}],...]` kept the
+    # key counter's per-object hook busy for seconds on the event loop).
+    MAX_CONTAINERS = 20000
+
     def __init__(self, app, limit: int, max_keys: int = 2000) -> None:
         self.app, self.limit, self.max_keys = app, limit, max_keys
 
@@ -25,9 +33,10 @@ class BodyLimit:
         if scope["type"] != "http":
             return await self.app(scope, receive, send)
         headers = dict(scope.get("headers", ()))
+        limit = min(self.limit, self.SMALL_PATHS.get(scope.get("path", ""), self.limit))
         try:
-            if int(headers.get(b"content-length", b"0")) > self.limit:
-                return await self._refuse(send)
+            if int(headers.get(b"content-length", b"0")) > limit:
+                return await self._refuse(send, limit)
         except ValueError:
             pass
         chunks, seen, more = [], 0, True
@@ -37,12 +46,17 @@ class BodyLimit:
                 return
             body = message.get("body", b"")
             seen += len(body)
-            if seen > self.limit:
-                return await self._refuse(send)
+            if seen > limit:
+                return await self._refuse(send, limit)
             chunks.append(body)
             more = message.get("more_body", False)
         body = b"".join(chunks)
         if body and b"json" in headers.get(b"content-type", b"").lower():
+            if body.count(b"{") + body.count(b"[") > self.MAX_CONTAINERS:
+                return await send_json(send, 422, {
+                    "detail": [{"loc": ["body"], "type": "too_many_containers",
+                                "msg": f"over {self.MAX_CONTAINERS} JSON objects and arrays in one body"}],
+                    "message": f"body: over {self.MAX_CONTAINERS} JSON objects and arrays in one body"})
             keys = _count_keys(body, self.max_keys)
             if keys > self.max_keys:
                 return await send_json(send, 422, {
@@ -60,8 +74,8 @@ class BodyLimit:
 
         await self.app(scope, replay, send)
 
-    async def _refuse(self, send) -> None:
-        await send_json(send, 413, {"detail": f"request body over {self.limit} bytes"})
+    async def _refuse(self, send, limit: int | None = None) -> None:
+        await send_json(send, 413, {"detail": f"request body over {limit or self.limit} bytes"})
 
 
 class _TooManyKeys(Exception):
