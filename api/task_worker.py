@@ -2,7 +2,8 @@
 with ``coordinator.runner.run``.
 
 Every episode boundary stores the episode record and the run's checkpoint in one SQLite
-transaction; cancellation and shutdown stop a run at the next episode boundary
+transaction; cancellation and shutdown stop a run before its next action (the episode
+under way is dropped: the run stays at its last episode boundary)
 (``should_stop``). After a restart, interrupted runs resume from their checkpoint and
 queued tasks run.
 """
@@ -61,7 +62,7 @@ class TaskWorker:
         self._cancel.add(task_id)
 
     def stop(self, timeout: float) -> bool:
-        """Ask the running task to stop at its next episode boundary (it stays `running`
+        """Ask the running task to stop before its next action (it stays `running`
         in the store and resumes from its checkpoint after a restart); wait `timeout`."""
         self._stopping.set()
         self._wake.set()

@@ -15,7 +15,7 @@ from __future__ import annotations
 import time
 from contextlib import contextmanager
 from dataclasses import dataclass
-from typing import Iterator
+from typing import Callable, Iterator
 
 import numpy as np
 
@@ -41,6 +41,10 @@ from .transition_model import TransitionModel
 # width / sqrt(12)) is reported `identified: false`: the data have not yet cut its plausible
 # range in half.
 IDENTIFIED_STD_SHARE = 0.5
+
+
+class EpisodeInterrupted(Exception):
+    """``run_episode`` was told to stop between two actions (a cancel or a shutdown)."""
 
 
 @dataclass
@@ -491,10 +495,15 @@ class Session:
         session.particle_steps = data["particle_steps"]
         return session
 
-    def run_episode(self, reality, reality_rng: np.random.Generator) -> dict:
-        """Drive one episode against `reality` (SimulatedReality or anything alike)."""
+    def run_episode(self, reality, reality_rng: np.random.Generator,
+                    should_stop: Callable[[], bool] | None = None) -> dict:
+        """Drive one episode against `reality` (SimulatedReality or anything alike).
+        `should_stop` is polled before each action: True raises EpisodeInterrupted (the
+        episode is dropped; the session stays at its last episode boundary's checkpoint)."""
         self.start_episode(reality.start_episode(reality_rng))
         while True:
+            if should_stop is not None and should_stop():
+                raise EpisodeInterrupted(f"episode {self.episode} stopped after {self.stats.actions} actions")
             step = self.next_step()
             if step is None:          # done before acting (e.g. nothing left to deliver)
                 return self._finish_episode()

@@ -209,3 +209,21 @@ def test_a_body_of_nested_containers_costs_the_loop_nothing(server, client):
     assert [c for c, _ in codes] == [413, 413, 413, 422], codes
     assert health_s < 0.5, health_s
     assert max(t for _, t in codes) < 3.0, codes
+
+
+def test_a_cancel_takes_effect_within_an_action(server, client):
+    """Row 4: cancellation waited for the episode to end: 108.7 s at 16 blocks, while
+    every queued task waited. It is now polled before every action."""
+    spec = {"agent": "tmoc", "particles": 8, "episodes": 2, "n_blocks": 16, "max_steps": 60,
+            "particle_budget": "fixed", "seed": 1}
+    tid = client.post("/v1/tasks", json=spec).json()["id"]
+    from .conftest import wait_for
+    wait_for(lambda: client.get(f"/v1/tasks/{tid}").json()["status"] == "running", timeout=120,
+             what="the task to start")
+    time.sleep(3.0)                                             # a few actions in
+    t0 = time.perf_counter()
+    assert client.delete(f"/v1/tasks/{tid}").status_code in (200, 202)
+    wait_for(lambda: client.get(f"/v1/tasks/{tid}").json()["status"] == "cancelled", timeout=60,
+             every=0.1, what="the cancel")
+    assert time.perf_counter() - t0 < 15.0
+    assert client.get(f"/v1/tasks/{tid}").json()["progress"]["episodes_done"] == 0
