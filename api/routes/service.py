@@ -2,9 +2,9 @@
 like /v1 when the server has a token)."""
 # No `from __future__ import annotations`: FastAPI must see the real classes in signatures.
 import sqlite3
+from pathlib import Path
 
-from fastapi import APIRouter, Request, Response
-from fastapi.openapi.docs import get_swagger_ui_html
+from fastapi import APIRouter, HTTPException, Request, Response
 from fastapi.responses import JSONResponse
 
 from .. import schemas as S
@@ -44,9 +44,52 @@ async def openapi_json(request: Request):
     return JSONResponse(request.app.openapi())
 
 
+# Swagger UI from the installed `fastapi-offline` (a pinned release), never a CDN: the
+# page runs with the session cookie's rights, so only our own scripts may run there
+# (issue 25: a floating CDN version, no SRI, no CSP).
+DOCS_CSP = ("default-src 'self'; img-src 'self' data:; style-src 'self' 'unsafe-inline'; "
+            "script-src 'self'; connect-src 'self'; frame-ancestors 'none'; base-uri 'none'; "
+            "form-action 'none'")
+DOCS_PAGE = b"""<!doctype html>
+<html lang="en"><head><meta charset="utf-8"><title>TMOC service: API</title>
+<link rel="stylesheet" href="/docs/swagger-ui.css"></head>
+<body><div id="swagger-ui"></div>
+<script src="/docs/swagger-ui-bundle.js"></script><script src="/docs/init.js"></script>
+</body></html>"""
+DOCS_INIT = (b'window.ui = SwaggerUIBundle({url: "/openapi.json", dom_id: "#swagger-ui", '
+             b'presets: [SwaggerUIBundle.presets.apis], layout: "BaseLayout", deepLinking: true});')
+
+
+def _swagger_assets() -> dict[str, tuple[bytes, str]]:
+    from importlib import resources
+
+    # fastapi-offline ships Swagger UI 5 (OpenAPI 3.1, what FastAPI writes); only its
+    # static files are used.
+    root = Path(str(resources.files("fastapi_offline") / "static"))
+    return {"swagger-ui-bundle.js": ((root / "swagger-ui-bundle.js").read_bytes(), "text/javascript; charset=utf-8"),
+            "swagger-ui.css": ((root / "swagger-ui.css").read_bytes(), "text/css; charset=utf-8"),
+            "init.js": (DOCS_INIT, "text/javascript; charset=utf-8")}
+
+
+_ASSETS: dict[str, tuple[bytes, str]] | None = None
+
+
 @docs_router.get("/docs")
 async def swagger():
-    return get_swagger_ui_html(openapi_url="/openapi.json", title="TMOC service")
+    return Response(DOCS_PAGE, media_type="text/html; charset=utf-8",
+                    headers={"Content-Security-Policy": DOCS_CSP, "X-Content-Type-Options": "nosniff"})
+
+
+@docs_router.get("/docs/{name}")
+async def swagger_asset(name: str):
+    global _ASSETS
+    if _ASSETS is None:
+        _ASSETS = _swagger_assets()           # read once (1.2 MB), on first use
+    if name not in _ASSETS:
+        raise HTTPException(404, f"{name!r}: not a file of the docs page")
+    body, ctype = _ASSETS[name]
+    return Response(body, media_type=ctype, headers={"Cache-Control": "max-age=86400",
+                                                     "X-Content-Type-Options": "nosniff"})
 
 
 __all__ = ["docs_router", "health_router"]

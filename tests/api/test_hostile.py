@@ -227,3 +227,25 @@ def test_a_cancel_takes_effect_within_an_action(server, client):
              every=0.1, what="the cancel")
     assert time.perf_counter() - t0 < 15.0
     assert client.get(f"/v1/tasks/{tid}").json()["progress"]["episodes_done"] == 0
+
+
+def test_the_docs_page_runs_only_the_service_s_own_scripts(server, client):
+    """Row 13: /docs loaded Swagger's script from a CDN (floating version, no SRI, no CSP)
+    into a page with the session cookie's rights. It is served from the installed
+    fastapi-offline's Swagger UI files, under a CSP that lets only the service's own scripts run."""
+    import re
+
+    page = client.get("/docs")
+    assert page.status_code == 200
+    csp = page.headers["content-security-policy"]
+    assert "script-src 'self'" in csp and "unsafe-inline" not in csp.split("script-src")[1].split(";")[0]
+    scripts = re.findall(r'<script[^>]*src="([^"]+)"', page.text)
+    assert scripts and all(src.startswith("/docs/") for src in scripts), scripts
+    assert "<script>" not in page.text                             # no inline script
+    js = client.get("/docs/swagger-ui-bundle.js")
+    assert js.status_code == 200 and js.headers["content-type"].startswith("text/javascript")
+    assert len(js.content) > 500_000
+    assert client.get("/docs/init.js").status_code == 200
+    assert client.get("/docs/../openapi.json").status_code in (200, 404)   # no path games past the table
+    assert client.get("/docs/passwd").status_code == 404
+    assert httpx.get(server.base + "/docs/swagger-ui-bundle.js", timeout=10).status_code == 401   # gated
