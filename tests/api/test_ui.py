@@ -37,8 +37,14 @@ def ui_server(tmp_path_factory):
 def browser(tmp_path):
     missing = [str(p) for p in (CHROMIUM, CHROMEDRIVER) if not p.exists()]
     if missing:
-        pytest.fail(f"{', '.join(missing)} missing: install the Debian packages chromium and "
-                    "chromium-driver (apt-get install -y chromium chromium-driver; .ci/run does)")
+        # A user's fresh machine (only Python and pip) has no browser: the suite they are
+        # told to run must pass there, so the test is skipped, saying why. CI installs
+        # Chromium and sets TMOC_REQUIRE_BROWSER=1 (.ci/run): there a missing browser fails.
+        why = (f"{', '.join(missing)} missing: install the Debian packages chromium and "
+               "chromium-driver (apt-get install -y chromium chromium-driver; .ci/run does)")
+        if os.environ.get("TMOC_REQUIRE_BROWSER") == "1":
+            pytest.fail(why)
+        pytest.skip(why)
     from selenium import webdriver
     from selenium.webdriver.chrome.options import Options
     from selenium.webdriver.chrome.service import Service
