@@ -76,7 +76,7 @@ class Reweighting:
     # ----------------------------------------------------------------- groups of L
     def _block_groups(self) -> list[np.ndarray]:
         """Each block's columns of L (property-major rows) when weights are kept per block."""
-        if not (self.per_block and self.config.block_weights):
+        if not (self.per_block and self.config.block_weights and self.regularised):
             return []
         n = len(self.block_names)
         return [np.array([j * n + k for j in range(self.n_properties)]) for k in range(n)]

@@ -32,7 +32,9 @@ class StrictCosts(Costs):
     model_config = ConfigDict(extra="forbid", strict=True, allow_inf_nan=False)
 
 
-_INT_FIELDS = ("particles", "episodes", "seed", "n_blocks", "max_steps", "shards")
+# Every integer field of RunConfig (min_particles was missed when listed by hand: 1027.0
+# was refused while 1027 was taken).
+_INT_FIELDS = tuple(name for name, f in RunConfig.model_fields.items() if f.annotation in (int, int | None))
 
 
 class _SpecBase(BaseModel):

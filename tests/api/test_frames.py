@@ -63,11 +63,13 @@ def test_frames_are_bounded_served_as_png_and_change_no_result(tmp_path):
             b = c.get(f"/v1/tasks/{without}/episodes").json()
             assert _without_timings(a) == _without_timings(b)
             assert a[0]["failures"], a[0]       # the case with a failed action's picture
-            # T per context after the run: the counts the planner's T comes from
+            # T per context after the run: the counts the planner's T comes from, for a
+            # context the robot failed in (which one depends on the planner's choices)
             trans = c.get(f"/v1/tasks/{with_frames}/transition").json()
-            push8 = next(r for r in trans["rows"] if r["action"] == "push" and r["context"] == 8)
-            assert push8["real_trials"] >= 1 and push8["p"] < 1.0
-            assert abs(push8["p"] - (push8["successes"] + 1) / (push8["trials"] + 1)) < 1e-9
+            failed = [r for r in trans["rows"] if r["real_trials"] >= 1 and r["p"] < 1.0]
+            assert failed, trans["rows"]
+            for row in failed:
+                assert abs(row["p"] - (row["successes"] + 1) / (row["trials"] + 1)) < 1e-9, row
     finally:
         srv.stop()
     assert "Traceback" not in srv.log(), srv.log()

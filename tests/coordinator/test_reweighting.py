@@ -198,9 +198,13 @@ def test_the_filter_settings_are_validated():
         RunConfig(outlier_rate=0.7)
     with pytest.raises(ValidationError, match="resample_kernel"):
         RunConfig(resample_kernel="gauss")
-    with pytest.raises(ValidationError, match="block_weights: needs"):
-        RunConfig(resample_kernel="jitter")
-    assert RunConfig(resample_kernel="jitter", block_weights=False).resample_kernel == "jitter"
+    # Weights per block go with the Musso kernel only; with the fixed jitter the pair is
+    # accepted (a schema-valid request) and the weights stay one per particle.
+    assert RunConfig(resample_kernel="jitter").block_weights
+    from coordinator.reweighting import Reweighting
+    rw = Reweighting(RunConfig(resample_kernel="jitter", sizes_variation=True),
+                     (np.zeros(0, dtype=np.int64), np.zeros(0)), ["b1", "b2"], 1, per_block=True)
+    assert rw._block_groups() == []
     d = RunConfig()
     assert (d.outlier_rate, d.model_error, d.ess_keep, d.resample_kernel, d.lock_in) == \
         (0.05, "online", 0.5, "rpf", True)
