@@ -177,6 +177,14 @@ class ContainerDomain:
         """
         return np.concatenate([[config.robot[4]], config.objects[1:, :2].ravel()])
 
+    def measurement_channels(self) -> list[dict]:
+        """Every channel: name, index, unit and sigma (None: reported, not weighed): the
+        finger opening, then each block's x and y (issue 25: the listing showed the one
+        weighed channel while an observation must carry all 17)."""
+        return ([{"name": "finger_opening", "index": 0, "unit": "m", "sigma": 0.002}]
+                + [{"name": f"{b}_{ax}", "index": 1 + 2 * i + k, "unit": "m", "sigma": None}
+                   for i, b in enumerate(self.block_names) for k, ax in enumerate("xy")])
+
     def measurement_model(self) -> tuple[np.ndarray, np.ndarray]:
         """(indices, std) of the measurements the belief's Gaussian likelihood uses.
 

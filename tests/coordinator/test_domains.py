@@ -105,3 +105,15 @@ def test_a_second_domain_with_the_same_action_names_learns_its_own_contexts():
     t.observe_transition(tower3, "stack(r,b4,tower)", success=False)
     assert t.probability("stack", 3) == 0.5 and t.probability("stack", 0) == 1.0
     assert np.isclose(t.to_planner()["stack"][3], 0.5)
+
+
+def test_every_measurement_channel_is_listed_by_name():
+    """Issue 25 (the robot integrator): the container's listing showed one channel while an
+    observation must carry 17; every domain now names them all, in order."""
+    from coordinator.domains import describe
+
+    for name in ("container", "stack_and_push"):
+        m = describe(name)["measurements"]
+        assert [c["index"] for c in m["channels"]] == list(range(m["count"])), name
+    names = [c["name"] for c in describe("container")["measurements"]["channels"]]
+    assert names[:3] == ["finger_opening", "b1_x", "b1_y"] and names[-1] == "b8_y" and len(names) == 17
