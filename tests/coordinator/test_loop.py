@@ -38,7 +38,10 @@ def test_transition_model_learns_that_heavy_loads_fall_and_the_plan_splits():
     cfg = RunConfig(agent="tmoc", particles=8, episodes=3, seed=1)
     result = run(cfg)
     T = result["summary"]["transition"]
-    assert T["push"][7] < T["push"][1], T["push"]
+    # Some heavy load the robot pushed and saw fall is learned below the light loads'
+    # (which one depends on where the first trip failed: with the trip-priced planner a
+    # failed stack of 8 is replanned before any push of 8; seed 1: a push of 5, T 0.59).
+    assert min(T["push"][2:]) < T["push"][1], T["push"]
     first_plan = result["episodes"][0]["plans"][0]
     later_plans = [p for e in result["episodes"][1:] for p in e["plans"]]
     assert first_plan == [8]

@@ -66,7 +66,9 @@ def test_the_count_falls_as_the_belief_converges(runs):
     assert all(set(e["particles_per_action"]) == {24} for e in fixed)
     assert kld[0]["particles_per_action"][0] == 24                     # the prior is wide
     assert set(kld[-1]["particles_per_action"]) == {6}                # converged: the floor
-    assert sum(e["particle_actions"] for e in kld) < 0.5 * sum(e["particle_actions"] for e in fixed)
+    # 774 of 1440 (54 %) with issue 24's filter (its tempering keeps the posterior wider
+    # for longer: one action of episode 2 went back to 24 particles); 48 % before it.
+    assert sum(e["particle_actions"] for e in kld) < 0.6 * sum(e["particle_actions"] for e in fixed)
     # ... and learns as much: the same final utility, the posterior within 1 mm.
     assert kld[-1]["utility"] == fixed[-1]["utility"]
     assert abs(kld[-1]["posterior"]["size_mean"] - fixed[-1]["posterior"]["size_mean"]) < 0.001
