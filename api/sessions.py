@@ -36,6 +36,9 @@ class SessionBusy(SessionConflict):
     """Another request holds the session (a step in progress): HTTP 409 with Retry-After,
     at once or after at most LOCK_WAIT_S, never a pool thread parked behind the step."""
 
+    def __init__(self, session_id: str) -> None:
+        super().__init__(f"session {session_id!r}: a step is in progress; retry in a moment")
+
 
 # How long a request waits for a session another request holds (a pool thread waits
 # meanwhile: issue 25, 45 GETs of /next behind one 256-particle step used up all 40).
@@ -84,7 +87,7 @@ class SessionManager:
         """The session's lock, waited for at most LOCK_WAIT_S (SessionBusy after)."""
         lock = self._lock_for(session_id)
         if not lock.acquire(timeout=LOCK_WAIT_S):
-            raise SessionBusy(f"session {session_id!r}: a step is in progress; retry in a moment")
+            raise SessionBusy(session_id)
         try:
             yield lock
         finally:

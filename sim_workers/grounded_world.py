@@ -324,13 +324,19 @@ class GroundedWorld:
         return 2.0 * (float(np.mean(q)) - h.finger_inner)
 
 
-def act(world: GroundedWorld, domain, config: Configuration, believed: dict, action: str):
+def act(world: GroundedWorld, domain, config: Configuration, believed: dict, action: str,
+        run_as=None):
     """Run `action` with Y at the believed properties, as the robot does: the free-space
     transit is skipped unless the hand carries an object, which may shift in the fingers
     on the way (issue 24: T*'s probes judged stacks of 58 mm cubes teleported into place,
-    while the robot's, carried, pivoted in the fingers and failed)."""
+    while the robot's, carried, pivoted in the fingers and failed). `run_as(traj, action)`
+    gives the trajectory a real arm runs instead of the planned one (its retimed start of
+    the action follows)."""
     key = domain.action_pose(believed, config, action)
     traj = domain.action_trajectory(config, action, key)
     carried = any(atom.startswith("is_holding(") for atom in domain.symbolic_state(config))
     start = 0.0 if carried else domain.transit_end_time(config, action, key)
+    if run_as is not None:
+        planned, traj = traj, run_as(traj, action)
+        start = float(np.interp(start, planned[:, 0], traj[:, 0]))
     return world.execute(traj, action, start_time=start)

@@ -1,6 +1,7 @@
 """The service itself: GET /health (open), and the API's docs (/openapi.json, /docs; gated
 like /v1 when the server has a token)."""
 # No `from __future__ import annotations`: FastAPI must see the real classes in signatures.
+import functools
 import sqlite3
 from pathlib import Path
 
@@ -60,6 +61,7 @@ DOCS_INIT = (b'window.ui = SwaggerUIBundle({url: "/openapi.json", dom_id: "#swag
              b'presets: [SwaggerUIBundle.presets.apis], layout: "BaseLayout", deepLinking: true});')
 
 
+@functools.cache                  # read once (1.2 MB), on first use
 def _swagger_assets() -> dict[str, tuple[bytes, str]]:
     from importlib import resources
 
@@ -71,9 +73,6 @@ def _swagger_assets() -> dict[str, tuple[bytes, str]]:
             "init.js": (DOCS_INIT, "text/javascript; charset=utf-8")}
 
 
-_ASSETS: dict[str, tuple[bytes, str]] | None = None
-
-
 @docs_router.get("/docs")
 async def swagger():
     return Response(DOCS_PAGE, media_type="text/html; charset=utf-8",
@@ -82,12 +81,10 @@ async def swagger():
 
 @docs_router.get("/docs/{name}")
 async def swagger_asset(name: str):
-    global _ASSETS
-    if _ASSETS is None:
-        _ASSETS = _swagger_assets()           # read once (1.2 MB), on first use
-    if name not in _ASSETS:
+    assets = _swagger_assets()
+    if name not in assets:
         raise HTTPException(404, f"{name!r}: not a file of the docs page")
-    body, ctype = _ASSETS[name]
+    body, ctype = assets[name]
     return Response(body, media_type=ctype, headers={"Cache-Control": "max-age=86400",
                                                      "X-Content-Type-Options": "nosniff"})
 

@@ -81,9 +81,8 @@ async def close_session(session_id: SessionId, store: StoreDep, sessions: Sessio
 
 
 async def _session_call(fn, *args):
-    sessions = fn.__self__
-    if sessions.busy(args[0]):           # answered on the loop: no pool thread waits
-        raise _conflict(SessionBusy(f"session {args[0]!r}: a step is in progress; retry in a moment"))
+    if fn.__self__.busy(args[0]):        # a SessionManager method; answered on the loop
+        raise _conflict(SessionBusy(args[0]))
     try:
         return await run_in_threadpool(fn, *args)
     except SessionGone:

@@ -32,12 +32,9 @@ def real_push(world: GroundedWorld, domain, config: Configuration, believed: dic
               rng: np.random.Generator):
     """The tower pushed to the goal through Y at the believed properties, its timing as a
     real arm runs it (``reality_gap.executed``: the simulated reality's per-push jitter)."""
-    action = "push(r,tower,start,goal)"
-    key = domain.action_pose(believed, config, action)
-    planned = domain.action_trajectory(config, action, key)
-    traj = executed(planned, action, rng, push_time_jitter(domain))
-    start = float(np.interp(domain.transit_end_time(config, action, key), planned[:, 0], traj[:, 0]))
-    return world.execute(traj, action, start_time=start)
+    jitter = push_time_jitter(domain)
+    return act(world, domain, config, believed, "push(r,tower,start,goal)",
+               run_as=lambda traj, action: executed(traj, action, rng, jitter))
 
 
 def tower_configuration(domain, sizes: np.ndarray, load_k: int, rng: np.random.Generator) -> Configuration:

@@ -17,7 +17,7 @@ from coordinator.reality import SimulatedReality
 from planner import stack_and_push_symbolic as sps
 from planner import symbolic as sy
 
-from .conftest import Server, free_port, stream_events, tmoc
+from .conftest import Server, free_port, stream_events, tmoc, wait_for
 
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(300)]
 
@@ -217,7 +217,6 @@ def test_a_cancel_takes_effect_within_an_action(server, client):
     spec = {"agent": "tmoc", "particles": 8, "episodes": 2, "n_blocks": 16, "max_steps": 60,
             "particle_budget": "fixed", "seed": 1}
     tid = client.post("/v1/tasks", json=spec).json()["id"]
-    from .conftest import wait_for
     wait_for(lambda: client.get(f"/v1/tasks/{tid}").json()["status"] == "running", timeout=120,
              what="the task to start")
     time.sleep(3.0)                                             # a few actions in
