@@ -164,23 +164,32 @@ def test_a_busy_session_does_not_hold_the_thread_pool(server, client):
     headers = server.headers
 
     def get(path):
-        t0 = time.perf_counter()
         r = httpx.get(server.base + path, headers=headers, timeout=60)
-        return r.status_code, time.perf_counter() - t0
+        return r.status_code, time.perf_counter()                  # when it was answered
 
+    def step():
+        r = httpx.post(f"{server.base}/v1/sessions/{sid}/observations", json=body, headers=headers,
+                       timeout=300)
+        return r.status_code, time.perf_counter()
+
+    # Judged against the step itself, not a wall-clock bound (CI's 2 cores are busy with
+    # the step's physics): before the fix every answer came after the step ended (/health
+    # 6.2 s, the step's length); now they come while it runs.
     with ThreadPoolExecutor(max_workers=50) as pool:
-        step_done = pool.submit(httpx.post, f"{server.base}/v1/sessions/{sid}/observations", json=body,
-                                headers=headers, timeout=300)
+        step_done = pool.submit(step)
         time.sleep(0.3)                                           # the step is under way
         nexts = [pool.submit(get, f"/v1/sessions/{sid}/next") for _ in range(45)]
         time.sleep(0.2)
         health = get("/health")
         tasks = get("/v1/tasks")
         answered = [f.result() for f in nexts]
-        assert step_done.result().status_code == 200
-    assert health[1] < 0.5 and tasks[1] < 0.5, (health, tasks)
-    assert all(code in (200, 409) for code, _ in answered), answered
-    assert max(t for _, t in answered) < 2.0, sorted(t for _, t in answered)[-5:]
+        code, step_end = step_done.result()
+    assert code == 200
+    assert health[0] == 200 and tasks[0] == 200
+    assert health[1] < step_end and tasks[1] < step_end, (health[1] - step_end, tasks[1] - step_end)
+    assert all(c in (200, 409) for c, _ in answered), answered
+    busy = [t for c, t in answered if c == 409]
+    assert busy and all(t < step_end for t in busy), len(busy)    # told at once, during the step
 
 
 def test_a_body_of_nested_containers_costs_the_loop_nothing(server, client):
