@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import asyncio
 import signal
+import threading
 from contextlib import asynccontextmanager
 
 from fastapi import APIRouter, Depends, FastAPI
@@ -68,8 +69,10 @@ async def lifespan(app: FastAPI):
     """Open the store, start the task worker; at the end stop it, close the pools and Ray."""
     st = app.state
     st.store = Store(st.settings.db)
-    st.worker = TaskWorker(st.store, st.shard_pools, st.notifier, max_frames=st.settings.max_frames)
-    st.sessions = SessionManager(st.store, st.shard_pools, st.settings.max_sessions)
+    st.worker = TaskWorker(st.store, st.shard_pools, st.notifier, max_frames=st.settings.max_frames,
+                           max_runtime_s=st.settings.max_task_runtime_s)
+    st.sessions = SessionManager(st.store, st.shard_pools, st.settings.max_sessions,
+                                 st.settings.session_idle_s)
     loop = asyncio.get_running_loop()
     st.notifier.bind(loop)
     st.shutting_down = asyncio.Event()
@@ -79,9 +82,13 @@ async def lifespan(app: FastAPI):
     restore_signals = _signal_restorer()
     st.shard_pools.on_ray_ready = lambda: loop.call_soon_threadsafe(restore_signals)
     st.worker.start()
+    stop_restore = threading.Event()
+    threading.Thread(target=st.sessions.restore, args=(stop_restore,), name="tmoc-session-restore",
+                     daemon=True).start()
     try:
         yield
     finally:
+        stop_restore.set()
         st.shutting_down.set()
         await run_in_threadpool(st.worker.stop, st.settings.shutdown_grace_s)
         await run_in_threadpool(st.shard_pools.close)
@@ -111,7 +118,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.include_router(ui.router)
     v1 = APIRouter(prefix="/v1", dependencies=gate, responses=error_responses(401))
     limits = (settings.max_particles, settings.max_episodes, settings.max_steps)
-    v1.include_router(tasks.router(S.task_spec_model(*limits)))
+    v1.include_router(tasks.router(S.task_spec_model(*limits, settings.max_task_runtime_s)))
     v1.include_router(frames.router)
     v1.include_router(domains.router)
     v1.include_router(sessions.router(S.session_create_model(*limits)))

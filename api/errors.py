@@ -50,6 +50,8 @@ def _friendly(err: dict, settings: Settings) -> str:
         return f"{msg} (this server's limit --max-episodes {settings.max_episodes})"
     if typ == "less_than_equal" and loc[-1:] == ("max_steps",):
         return f"{msg} (this server's limit --max-steps {settings.max_steps})"
+    if typ == "less_than_equal" and loc[-1:] == ("max_runtime_s",):
+        return f"{msg} (this server's limit --max-task-runtime-s {settings.max_task_runtime_s:g})"
     if loc == ("header", "Last-Event-ID"):
         return "expected an episode index (an integer >= -1)"
     if typ == "json_invalid":
@@ -98,7 +100,9 @@ async def _validation(request: Request, exc: RequestValidationError) -> JSONResp
     ctype = request.headers.get("content-type", "")
     if request.method in ("POST", "PUT", "PATCH") and "json" not in ctype.lower():
         for e in errors:
-            if tuple(e.get("loc", ())) == ("body",):
+            # the domain union's tag is part of `loc` (text/plain reached the union: issue 25)
+            loc = tuple(p for p in e.get("loc", ()) if not str(p).startswith(S.TAG_PREFIX))
+            if loc == ("body",):
                 e["msg"] = (f"expected a JSON object sent with Content-Type: application/json "
                             f"(got {ctype or 'no Content-Type'})")
     return JSONResponse(validation_body(errors, request.app.state.settings), 422)

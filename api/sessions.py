@@ -9,7 +9,9 @@ where it was.
 from __future__ import annotations
 
 import json
+import logging
 import threading
+import time
 import weakref
 from contextlib import contextmanager
 from dataclasses import dataclass, field
@@ -22,6 +24,8 @@ from coordinator.shard_pools import ShardPools
 
 from .schemas import run_config
 from .store import Store, new_id
+
+log = logging.getLogger("tmoc.api")
 
 
 class SessionConflict(Exception):
@@ -36,8 +40,10 @@ class SessionBusy(SessionConflict):
     """Another request holds the session (a step in progress): HTTP 409 with Retry-After,
     at once or after at most LOCK_WAIT_S, never a pool thread parked behind the step."""
 
-    def __init__(self, session_id: str) -> None:
-        super().__init__(f"session {session_id!r}: a step is in progress; retry in a moment")
+    def __init__(self, session_id: str, restoring: bool = False) -> None:
+        super().__init__(f"session {session_id!r}: " + (
+            "being restored after a restart (its episode is replayed)" if restoring
+            else "a step is in progress") + "; retry in a moment")
 
 
 # How long a request waits for a session another request holds (a pool thread waits
@@ -58,20 +64,24 @@ class LiveSession:
     status: str = "active"
     last_reply: dict | None = None       # {step_id, action, observation, reply} of the last step
     lock: threading.Lock | None = field(default=None, repr=False)   # keeps the weak entry alive
+    used: float = field(default_factory=time.monotonic)            # last request (monotonic s)
 
 
 class SessionManager:
     """External-robot sessions, kept in memory and mirrored to the store."""
 
-    def __init__(self, store: Store, shard_pools: ShardPools, max_active: int) -> None:
+    def __init__(self, store: Store, shard_pools: ShardPools, max_active: int,
+                 idle_s: float = float("inf")) -> None:
         self.store = store
         self.shard_pools = shard_pools
         self.max_active = max_active
+        self.idle_s = idle_s          # then a session leaves memory and the max_active count
         self._live: dict[str, LiveSession] = {}
         # Weak: a lock lives while a request holds it or its live session does, so ids that
         # were only asked about (unknown ones included) leave nothing behind.
         self._locks: "weakref.WeakValueDictionary[str, threading.Lock]" = weakref.WeakValueDictionary()
         self._guard = threading.Lock()
+        self._restoring: set[str] = set()      # sessions the restore thread replays now
 
     # -- helpers ---------------------------------------------------------------------
     def _lock_for(self, session_id: str) -> threading.Lock:
@@ -87,7 +97,7 @@ class SessionManager:
         """The session's lock, waited for at most LOCK_WAIT_S (SessionBusy after)."""
         lock = self._lock_for(session_id)
         if not lock.acquire(timeout=LOCK_WAIT_S):
-            raise SessionBusy(session_id)
+            raise SessionBusy(session_id, restoring=session_id in self._restoring)
         try:
             yield lock
         finally:
@@ -98,6 +108,10 @@ class SessionManager:
         with self._guard:
             lock = self._locks.get(session_id)
         return lock is not None and lock.locked()
+
+    def restoring(self, session_id: str) -> bool:
+        """Whether the start-up restore is replaying this session now."""
+        return session_id in self._restoring
 
     def held_locks(self) -> int:
         """Per-session locks alive now (for the soak test: must not grow with traffic)."""
@@ -187,8 +201,42 @@ class SessionManager:
         self._live[session_id] = live
         return live
 
+    def restore(self, stopping: threading.Event) -> int:
+        """Rebuild, after a restart, every session that was in the middle of an episode
+        (oldest first), each under its lock; returns how many. Run on a thread at start-up:
+        a replay costs the episode's simulations again (22 s at 128 particles and 6 steps,
+        issue 25), so the first request must not pay for it past the client's timeout.
+        Meanwhile requests to a session get 409 "being restored" with Retry-After."""
+        done = 0
+        for session_id in self.store.sessions_to_restore():
+            if stopping.is_set():
+                break
+            self._restoring.add(session_id)
+            try:
+                with self._lock_for(session_id):
+                    self._load(session_id)
+                done += 1
+            except Exception as exc:        # left to the first request, which reports it
+                log.warning("session %s: restore failed (%s: %s)", session_id, type(exc).__name__, exc)
+            finally:
+                self._restoring.discard(session_id)
+        return done
+
+    def _evict_idle(self) -> None:
+        """Drop from memory the live sessions unused for `idle_s` that no request holds;
+        the store keeps them (the next request rebuilds one, replaying its episode)."""
+        cutoff = time.monotonic() - self.idle_s
+        for sid, live in list(self._live.items()):
+            if live.used < cutoff and live.lock is not None and live.lock.acquire(blocking=False):
+                try:
+                    if live.used < cutoff:
+                        self._live.pop(sid, None)
+                finally:
+                    live.lock.release()
+
     def _get(self, session_id: str) -> LiveSession:
         live = self._load(session_id)
+        live.used = time.monotonic()
         if live.status == "closed":
             raise SessionConflict("session is closed", "session")
         return live
@@ -213,8 +261,9 @@ class SessionManager:
             nxt = self._next(live)
             mirror.update(episode_start=canonical, pending=nxt)
         with live.lock:
-            self.store.create_session(session_id, spec, checkpoint, mirror, self.max_active)
+            self.store.create_session(session_id, spec, checkpoint, mirror, self.max_active, self.idle_s)
             self._live[session_id] = live
+        self._evict_idle()
         return session_id, nxt
 
     def start_episode(self, session_id: str, initial: dict) -> tuple[int, dict | None]:

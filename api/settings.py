@@ -16,10 +16,19 @@ class Settings:
     max_steps: int = 1000
     max_queued: int = 64
     max_sessions: int = 16
+    # A session nothing was stored for this long no longer counts against max_sessions,
+    # and leaves memory (it is rebuilt from the store when its robot comes back): an
+    # abandoned session, or one whose create reply was lost, no longer holds a slot forever.
+    session_idle_s: float = 3600.0
     max_body_bytes: int = 4 * 1024 * 1024
     n_shards: int | None = None
     shutdown_grace_s: float = 5.0
     max_frames: int = 48          # scene pictures kept per task (0: none rendered)
+    # A task's running time at most (its `max_runtime_s`, and the default of one that
+    # leaves it out): past it the task stops within one action and fails, its finished
+    # episodes kept. Bounds what one request may cost (issue 25: an episode at the
+    # accepted maxima takes hours).
+    max_task_runtime_s: float = 3600.0
     # Host header names the server answers to (None: any). `tmoc serve` without a token
     # sets the loopback names, its --host and --allowed-host: a DNS-rebinding page that
     # reaches 127.0.0.1 under its own name gets a 400, not the API.

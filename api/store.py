@@ -299,11 +299,14 @@ class Store:
 
     # -- sessions ------------------------------------------------------------------------
     def create_session(self, session_id: str, spec: dict, checkpoint: dict, mirror: dict,
-                       max_active: int | None = None) -> None:
+                       max_active: int | None = None, idle_s: float = float("inf")) -> None:
+        """Store a new session; QueueFull when `max_active` sessions are active and were
+        changed within the last `idle_s` seconds (idle ones do not count)."""
         now = time.time()
         with self._write() as db:
             if max_active is not None:
-                active = db.execute("SELECT COUNT(*) FROM sessions WHERE status = 'active'").fetchone()[0]
+                active = db.execute("SELECT COUNT(*) FROM sessions WHERE status = 'active' AND updated_at > ?",
+                                    (now - idle_s if idle_s != float("inf") else float("-inf"),)).fetchone()[0]
                 if active >= max_active:
                     raise QueueFull(active, max_active)
             db.execute(
@@ -327,6 +330,13 @@ class Store:
                          (limit, offset))
         total = self._one("SELECT COUNT(*) FROM sessions")[0]
         return [_row(r, _SESSION_JSON) for r in rows], total
+
+    def sessions_to_restore(self) -> list[str]:
+        """Active sessions in the middle of an episode, oldest first: after a restart their
+        episode is replayed (see ``SessionManager.restore``)."""
+        rows = self._all("SELECT id FROM sessions WHERE status = 'active' AND in_episode = 1 "
+                         "ORDER BY seq", ())
+        return [r[0] for r in rows]
 
     def session_steps(self, session_id: str, episode: int) -> list[dict]:
         rows = self._all(

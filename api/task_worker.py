@@ -30,8 +30,10 @@ class TaskWorker:
     """Runs tasks one at a time, in the order queued, on a background thread."""
 
     def __init__(self, store: Store, shard_pools: ShardPools, notifier: Notifier,
-                 stall_s: float = 3600.0, max_frames: int = 48) -> None:
+                 stall_s: float = 3600.0, max_frames: int = 48,
+                 max_runtime_s: float = 3600.0) -> None:
         self.store = store
+        self.max_runtime_s = max_runtime_s    # a task's budget at most (`tmoc serve --max-task-runtime-s`)
         self.max_frames = max_frames          # scene pictures kept per task (0: none rendered)
         self.shard_pools = shard_pools
         self.notifier = notifier
@@ -156,9 +158,11 @@ class TaskWorker:
             return
         learns = agent_spec(config.agent).learn_belief
         resume = row["checkpoint"]
+        budget = _Budget(row["spec"].get("max_runtime_s"), self.max_runtime_s, resume)
 
         def on_episode(record: dict, session, checkpoint: dict) -> None:
             self.beat()
+            checkpoint[_Budget.KEY] = budget.spent()
             belief = session.belief.summary() if session.belief is not None else None
             self.store.record_episode(task_id, record, checkpoint, belief, session.transition_table())
             self._nodes[task_id] = checkpoint.get("nodes", [])
@@ -166,7 +170,7 @@ class TaskWorker:
 
         def should_stop() -> bool:
             self.beat()
-            return task_id in self._cancel or self._stopping.is_set()
+            return task_id in self._cancel or self._stopping.is_set() or budget.over()
 
         lease = (self.shard_pools.lease(config.domain, config.n_blocks, config.options) if learns
                  else nullcontext())
@@ -191,10 +195,35 @@ class TaskWorker:
             self.store.finish_task(task_id, "succeeded", result=summary)
         elif task_id in self._cancel or self.store.get_task(task_id)["cancel_requested"]:
             self.store.finish_task(task_id, "cancelled")
+        elif budget.over():
+            self.store.finish_task(task_id, "failed", error=(
+                f"budget: the task ran past its max_runtime_s of {budget.limit:g} s after {done} of "
+                f"{config.episodes} episodes (the finished episodes are kept; the one under way "
+                "was dropped)"))
         elif not self._stopping.is_set():  # pragma: no cover - run() ends early only when told
             self.store.finish_task(task_id, "failed", error=f"stopped after {done} episodes")
         # else: stopped by shutdown; it stays `running` and resumes after a restart.
         self._cancel.discard(task_id)
+
+
+class _Budget:
+    """A task's running time against its `max_runtime_s` (capped by the server's). The time
+    spent before a restart travels in the checkpoint (as of the last finished episode), so a
+    task cannot outlive its budget by being interrupted."""
+
+    KEY = "task_runtime_s"
+
+    def __init__(self, asked: float | None, cap: float, resume: dict | None) -> None:
+        self.limit = min(float(asked), cap) if asked is not None else cap
+        before = (resume or {}).get(self.KEY, 0.0)
+        self.before = float(before) if isinstance(before, (int, float)) else 0.0
+        self.t0 = time.monotonic()
+
+    def spent(self) -> float:
+        return self.before + time.monotonic() - self.t0
+
+    def over(self) -> bool:
+        return self.spent() > self.limit
 
 
 __all__ = ["TaskWorker"]

@@ -76,7 +76,7 @@ def parse_state(atoms: Iterable[str] | str) -> frozenset[str]:
             raise ValueError(f"state: unknown atom {atom!r}")
         if b in where:
             raise ValueError(f"state: {atom!r}: block {b} is already {where[b]}")
-        where[b] = atom
+        where[b] = terms.format_term(name, args)    # canonical: "on(b1,start)." was kept as sent
     if len(held) > 1:
         raise ValueError(f"state: the robot holds {held[0]} and {held[1]}")
     if empty == bool(held):

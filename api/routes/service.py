@@ -9,7 +9,7 @@ from fastapi import APIRouter, HTTPException, Request, Response
 from fastapi.responses import JSONResponse
 
 from .. import schemas as S
-from ..auth import bearer_ok
+from ..auth import authorised
 from ..deps import SettingsDep, ShardPoolsDep, StoreDep, TaskWorkerDep
 
 health_router = APIRouter()
@@ -21,19 +21,21 @@ health_router = APIRouter()
 async def health(request: Request, response: Response, settings: SettingsDep, store: StoreDep,
                  worker: TaskWorkerDep, shard_pools: ShardPoolsDep):
     """Liveness, the task worker's state and a glimpse of the queue; never needs a
-    token (the running task's id is shown only with one). 503 when not ok."""
+    token (the running task's id is shown only with one, or to a browser signed in at
+    /ui). 503 when not ok."""
     state = worker.health()
     try:
         queued = store.count_tasks("queued")
     except sqlite3.Error as exc:
         queued, state = -1, {**state, "ok": False, "last_error": f"store: {exc}"}
-    authorised = not settings.token or bearer_ok(
-        request.headers.get("authorization", "").encode(), settings.token.encode())
+    # a bearer or a browser signed in at /ui (issue 25: the dashboard saw no running task)
+    signed_in = not settings.token or authorised(
+        dict(request.scope.get("headers", ())), settings.token.encode(), request.app.state.cookie_sessions)
     if not state["ok"]:
         response.status_code = 503
     return {"status": "ok" if state["ok"] else "degraded", "version": request.app.version,
             "ray": shard_pools.ray_status, "queued": queued,
-            "running": worker.current if authorised else None,
+            "running": worker.current if signed_in else None,
             "auth": bool(settings.token), "worker": state}
 
 

@@ -40,7 +40,9 @@ def router(session_create: type) -> APIRouter:
             session_id, nxt = await run_in_threadpool(sessions.create, spec, initial)
         except QueueFull as exc:
             raise HTTPException(429, f"max_sessions: {exc.queued} sessions are active, this "
-                                     f"server's limit is {exc.limit} (--max-sessions)",
+                                     f"server's limit is {exc.limit} (--max-sessions); a session "
+                                     f"idle for {sessions.idle_s:g} s (--session-idle-s) stops "
+                                     "counting, or close one with DELETE /v1/sessions/{id}",
                                 headers={"Retry-After": "30"}) from None
         except SessionConflict as exc:
             raise _conflict(exc) from None
@@ -82,7 +84,7 @@ async def close_session(session_id: SessionId, store: StoreDep, sessions: Sessio
 
 async def _session_call(fn, *args):
     if fn.__self__.busy(args[0]):        # a SessionManager method; answered on the loop
-        raise _conflict(SessionBusy(args[0]))
+        raise _conflict(SessionBusy(args[0], restoring=fn.__self__.restoring(args[0])))
     try:
         return await run_in_threadpool(fn, *args)
     except SessionGone:

@@ -10,7 +10,7 @@ import json
 import math
 import time
 from importlib import resources
-from urllib.parse import parse_qs
+from urllib.parse import parse_qs, urlsplit
 
 from fastapi import APIRouter, HTTPException, Path, Request
 from fastapi.responses import HTMLResponse, JSONResponse, RedirectResponse, Response
@@ -116,8 +116,23 @@ async def login(request: Request, settings: SettingsDep, sessions: CookieSession
     return response
 
 
+def cross_site(request: Request) -> bool:
+    """A browser's request from another site: Sec-Fetch-Site says so, or the Origin it
+    sends is not this server's. A request without either (a script, an old browser) is not."""
+    if request.headers.get("sec-fetch-site", "").lower() == "cross-site":
+        return True
+    origin = request.headers.get("origin")
+    if origin is None:
+        return False
+    return urlsplit(origin).netloc.lower() != request.headers.get("host", "").lower()
+
+
 @router.post("/ui/logout")
 async def logout(request: Request, sessions: CookieSessionsDep):
+    """Sign the browser out (its session id revoked, the cookie cleared). Another site's
+    page may not do it (issue 25: a cross-site POST cleared the cookie): 403."""
+    if cross_site(request):
+        raise HTTPException(403, "sign-out from another site's page refused")
     sessions.revoke(session_id(request.headers.get("cookie", "")))
     response = RedirectResponse("/ui", 303)
     response.delete_cookie(COOKIE, path="/", httponly=True, samesite="strict")

@@ -183,10 +183,16 @@ def spec_body(spec: BaseModel, **dump) -> dict:
     return body
 
 
-def task_spec_model(max_particles: int, max_episodes: int, max_steps: int = 1000) -> Any:
+def task_spec_model(max_particles: int, max_episodes: int, max_steps: int = 1000,
+                    max_runtime_s: float = 3600.0) -> Any:
     """A task: the RunConfig fields, with this server's limits, and the kind of reality;
     `options` and `truth` per domain."""
     fields = _spec_fields(set(), max_particles, max_episodes, max_steps)
+    fields["max_runtime_s"] = (float | None, Field(
+        None, ge=1.0, le=max_runtime_s,
+        description=f"the task's budget of running time in seconds (queueing not counted); past it "
+                    f"the task stops within one action and fails, its finished episodes kept. "
+                    f"Unset: this server's limit, {max_runtime_s:g} s (--max-task-runtime-s)"))
     fields["frames"] = (bool, Field(
         True, description="render scene pictures (GET /v1/tasks/{id}/frames): the real world at the "
                           "end of every episode, every failed action beside particles' predictions; "

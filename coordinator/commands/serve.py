@@ -9,6 +9,7 @@ task and session. With TMOC_API_TOKEN set every route but /health needs
 from __future__ import annotations
 
 import argparse
+import contextlib
 import ipaddress
 import os
 import socket
@@ -38,6 +39,12 @@ def register(sub) -> None:
                    help="scene pictures kept per task (the oldest go first; 0: none rendered)")
     p.add_argument("--log-level", default="info", choices=["critical", "error", "warning", "info", "debug"])
     p.add_argument("--no-access-log", action="store_true", help="do not log every request")
+    p.add_argument("--session-idle-s", type=float, default=3600.0,
+                   help="a robot session nothing was stored for this long stops counting against "
+                        "--max-sessions and leaves memory (it still works when its robot returns)")
+    p.add_argument("--max-task-runtime-s", type=float, default=3600.0,
+                   help="a task's running time at most, and the budget of one that sets no "
+                        "max_runtime_s: past it the task stops within one action and fails")
     p.add_argument("--max-connections", type=int, default=1024,
                    help="open connections before new ones get 503 (uvicorn's limit_concurrency)")
     p.add_argument("--allowed-host", action="append", default=[], metavar="NAME",
@@ -72,6 +79,12 @@ def check_args(args) -> str | None:
         if getattr(args, flag) > most:
             raise UsageError(f"--{flag.replace('_', '-')}: {getattr(args, flag)} is over {most}, "
                              "the most a task can use")
+    idle = getattr(args, "session_idle_s", 3600.0)
+    if not 1.0 <= idle <= 366 * 86400:
+        raise UsageError(f"--session-idle-s: must be in [1, 31622400] seconds (got {idle})")
+    budget = getattr(args, "max_task_runtime_s", 3600.0)
+    if not 1.0 <= budget <= 366 * 86400:       # also refuses nan and inf
+        raise UsageError(f"--max-task-runtime-s: must be in [1, 31622400] seconds (got {budget})")
     if getattr(args, "max_frames", 0) < 0 or getattr(args, "max_frames", 0) > 10000:
         raise UsageError(f"--max-frames: must be in [0, 10000] (got {args.max_frames})")
     if args.shards is not None and args.shards < 1:
@@ -116,6 +129,17 @@ def _server_class():
                 begin()
             super().handle_exit(sig, frame)
 
+        @contextlib.contextmanager
+        def capture_signals(self):
+            # uvicorn raises the caught SIGTERM/SIGINT again after its shutdown, so a clean
+            # stop exited with -15 (issue 25): a stop that completed exits 0. If serving
+            # failed, the yield raises and the signal is re-raised as before.
+            with super().capture_signals():
+                yield
+                captured = getattr(self, "_captured_signals", None)
+                if isinstance(captured, list):
+                    captured.clear()
+
     return Server
 
 
@@ -144,7 +168,9 @@ def main(args) -> int:
                         max_particles=args.max_particles, max_episodes=args.max_episodes,
                         max_steps=args.max_steps, max_queued=args.max_queued,
                         max_sessions=args.max_sessions, n_shards=args.shards,
-                        max_frames=args.max_frames, allowed_hosts=allowed_hosts(args, token))
+                        max_frames=args.max_frames, allowed_hosts=allowed_hosts(args, token),
+                        max_task_runtime_s=args.max_task_runtime_s,
+                        session_idle_s=args.session_idle_s)
     app = create_app(settings)
     config = uvicorn.Config(app, host=args.host, port=args.port, workers=1,
                             log_level=args.log_level, access_log=not args.no_access_log,

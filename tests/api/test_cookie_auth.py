@@ -6,7 +6,7 @@ from __future__ import annotations
 import httpx
 import pytest
 
-from .conftest import TOKEN, parse_sse
+from .conftest import TOKEN, parse_sse, wait_for
 
 # Slow: real tasks on a served Ray. Timeout: a task's event stream may take its 300 s after the server's start.
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(420)]
@@ -46,6 +46,36 @@ def test_login_sets_a_session_cookie_that_is_not_the_token(server):
         replay = httpx.get(server.base + "/v1/tasks", cookies={"tmoc_session": value})
         assert replay.status_code == 401
     assert TOKEN not in server.log()
+
+
+def test_another_site_cannot_sign_the_browser_out(server):
+    """Issue 25, row 14: a cross-site POST /ui/logout cleared the cookie."""
+    with httpx.Client(base_url=server.base, timeout=60) as c:
+        assert c.post("/ui/login", json={"token": TOKEN}).status_code == 200
+        for headers in ({"Origin": "https://evil.example"}, {"Sec-Fetch-Site": "cross-site"}):
+            r = c.post("/ui/logout", headers=headers)
+            assert r.status_code == 403 and "set-cookie" not in r.headers, (headers, r.text)
+            assert c.get("/v1/tasks").status_code == 200            # still signed in
+        own = server.base.split("//", 1)[1]
+        r = c.post("/ui/logout", headers={"Origin": f"http://{own}", "Sec-Fetch-Site": "same-origin"})
+        assert r.status_code == 303 and c.get("/v1/tasks").status_code == 401
+
+
+def test_a_signed_in_browser_sees_the_running_task_on_health(server):
+    """Issue 25, row 14: /health named the running task to a bearer only."""
+    bearer = {"Authorization": f"Bearer {TOKEN}"}
+    with httpx.Client(base_url=server.base, timeout=60) as c:
+        tid = c.post("/v1/tasks", headers=bearer, json={"particles": 8, "episodes": 6, "n_blocks": 8,
+                                                         "max_steps": 60, "seed": 3}).json()["id"]
+        try:
+            wait_for(lambda: c.get("/health").json()["queued"] == 0
+                     and c.get("/health", headers=bearer).json()["running"] == tid,
+                     timeout=300, every=0.2, what="the task to run")
+            assert c.get("/health").json()["running"] is None          # anonymous: not shown
+            assert c.post("/ui/login", json={"token": TOKEN}).status_code == 200
+            assert c.get("/health").json()["running"] == tid           # the cookie, no bearer
+        finally:
+            c.delete(f"/v1/tasks/{tid}", headers=bearer)
 
 
 def test_bad_sign_ins_get_4xx_and_no_cookie(server):

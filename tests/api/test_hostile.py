@@ -143,53 +143,62 @@ def test_wrong_sign_ins_are_throttled(tmp_path):
         srv.stop()
 
 
-def test_a_busy_session_does_not_hold_the_thread_pool(server, client):
+def test_a_busy_session_does_not_hold_the_thread_pool(tmp_path):
     """Row 2: one observation of many particles in flight and 45 concurrent GETs of /next
     on that session used up the 40 pool threads: /health, the task list and other sessions
     waited until the step ended. Now /next answers at once (409, Retry-After) while the
     step runs, and everything else stays fast."""
     from concurrent.futures import ThreadPoolExecutor
 
+    # 256 particles as in the issue: a step of seconds, long enough to judge (64 made
+    # steps of 0.6 s, shorter than the test's own set-up of the GETs)
+    server = Server(tmp_path / "busy.sqlite", "--max-particles", "256").start()
     robot = SimulatedReality("container", {"n_blocks": 8}, {"block_sizes": np.full(8, 0.045)})
     try:
         start = robot.start_episode(np.random.default_rng(0))
-        r = client.post("/v1/sessions", json={"particles": 64, "particle_budget": "fixed", "episodes": 1,
-                                              "max_steps": 5, "observation": {"configuration": start.configuration.to_dict()}})
+        with server.client() as client:
+            r = client.post("/v1/sessions", json={
+                "particles": 256, "particle_budget": "fixed", "episodes": 1, "max_steps": 5,
+                "observation": {"configuration": start.configuration.to_dict()}})
         assert r.status_code == 201, r.text
         sid, step = r.json()["id"], r.json()["next"]
         out = robot.execute(np.array(step["trajectory"]), step["action"])
+        body = {"action": step["action"], "step_id": step["step_id"],
+                "configuration": out.configuration.to_dict()}
+        headers = server.headers
+
+        def get(path):
+            r = httpx.get(server.base + path, headers=headers, timeout=60)
+            return r.status_code, time.perf_counter()                  # when it was answered
+
+        def step():
+            r = httpx.post(f"{server.base}/v1/sessions/{sid}/observations", json=body, headers=headers,
+                           timeout=300)
+            return r.status_code, time.perf_counter()
+
+        # Judged against the step itself, not a wall-clock bound (CI's 2 cores are busy with
+        # the step's physics): before the fix every answer came after the step ended (/health
+        # 6.2 s, the step's length); now they come while it runs.
+        with ThreadPoolExecutor(max_workers=50) as pool:
+            step_done = pool.submit(step)
+            time.sleep(0.3)                                           # the step is under way
+            nexts = [pool.submit(get, f"/v1/sessions/{sid}/next") for _ in range(45)]
+            time.sleep(0.2)
+            asked = time.perf_counter()
+            health = get("/health")
+            tasks = get("/v1/tasks")
+            answered = [f.result() for f in nexts]
+            code, step_end = step_done.result()
+        assert code == 200
+        assert asked < step_end, "the step ended before the test could judge it"
+        assert health[0] == 200 and tasks[0] == 200
+        assert health[1] < step_end and tasks[1] < step_end, (health[1] - step_end, tasks[1] - step_end)
+        assert all(c in (200, 409) for c, _ in answered), answered
+        busy = [t for c, t in answered if c == 409]
+        assert busy and all(t < step_end for t in busy), len(busy)    # told at once, during the step
     finally:
         robot.close()
-    body = {"action": step["action"], "step_id": step["step_id"], "configuration": out.configuration.to_dict()}
-    headers = server.headers
-
-    def get(path):
-        r = httpx.get(server.base + path, headers=headers, timeout=60)
-        return r.status_code, time.perf_counter()                  # when it was answered
-
-    def step():
-        r = httpx.post(f"{server.base}/v1/sessions/{sid}/observations", json=body, headers=headers,
-                       timeout=300)
-        return r.status_code, time.perf_counter()
-
-    # Judged against the step itself, not a wall-clock bound (CI's 2 cores are busy with
-    # the step's physics): before the fix every answer came after the step ended (/health
-    # 6.2 s, the step's length); now they come while it runs.
-    with ThreadPoolExecutor(max_workers=50) as pool:
-        step_done = pool.submit(step)
-        time.sleep(0.3)                                           # the step is under way
-        nexts = [pool.submit(get, f"/v1/sessions/{sid}/next") for _ in range(45)]
-        time.sleep(0.2)
-        health = get("/health")
-        tasks = get("/v1/tasks")
-        answered = [f.result() for f in nexts]
-        code, step_end = step_done.result()
-    assert code == 200
-    assert health[0] == 200 and tasks[0] == 200
-    assert health[1] < step_end and tasks[1] < step_end, (health[1] - step_end, tasks[1] - step_end)
-    assert all(c in (200, 409) for c, _ in answered), answered
-    busy = [t for c, t in answered if c == 409]
-    assert busy and all(t < step_end for t in busy), len(busy)    # told at once, during the step
+        server.stop()
 
 
 def test_a_body_of_nested_containers_costs_the_loop_nothing(server, client):
@@ -235,6 +244,104 @@ def test_a_cancel_takes_effect_within_an_action(server, client):
              every=0.1, what="the cancel")
     assert time.perf_counter() - t0 < 15.0
     assert client.get(f"/v1/tasks/{tid}").json()["progress"]["episodes_done"] == 0
+
+
+def test_a_task_stops_at_its_budget_and_the_queue_goes_on(server, client):
+    """Row 4: no per-task budget existed; at the accepted maxima one task held the worker for
+    hours. `max_runtime_s` (capped by --max-task-runtime-s, its default) stops it within
+    one action: it fails naming the budget, and the next queued task runs."""
+    spec = {"agent": "tmoc", "particles": 8, "episodes": 2, "n_blocks": 16, "max_steps": 60,
+            "particle_budget": "fixed", "seed": 1, "max_runtime_s": 3}
+    long_id = client.post("/v1/tasks", json=spec).json()["id"]
+    after = client.post("/v1/tasks", json={"particles": 2, "episodes": 1, "n_blocks": 2,
+                                           "seed": 2, "frames": False})
+    assert after.status_code == 202, after.text
+    wait_for(lambda: client.get(f"/v1/tasks/{long_id}").json()["status"] == "running", timeout=120,
+             every=0.1, what="the task to start")
+    t0 = time.perf_counter()
+    wait_for(lambda: client.get(f"/v1/tasks/{long_id}").json()["status"] == "failed", timeout=60,
+             every=0.1, what="the budget")
+    assert time.perf_counter() - t0 < 3.0 + 12.0                  # the budget plus one action
+    task = client.get(f"/v1/tasks/{long_id}").json()
+    assert task["error"].startswith("budget: the task ran past its max_runtime_s of 3 s"), task
+    assert task["progress"]["episodes_done"] == 0
+    wait_for(lambda: client.get(f"/v1/tasks/{after.json()['id']}").json()["status"] == "succeeded",
+             timeout=120, what="the next task")
+
+
+def test_a_budget_over_the_server_s_cap_is_refused_by_name(client):
+    r = client.post("/v1/tasks", json={"particles": 2, "episodes": 1, "max_runtime_s": 1e9})
+    assert r.status_code == 422
+    assert "max_runtime_s" in r.json()["message"] and "--max-task-runtime-s 3600" in r.json()["message"]
+    r = client.post("/v1/tasks", json={"particles": 2, "episodes": 1, "max_runtime_s": 0})
+    assert r.status_code == 422 and "max_runtime_s" in r.json()["message"]
+
+
+def test_after_a_restart_a_session_is_restored_in_the_background(tmp_path):
+    """Row 8: the first request after a restart replayed the episode itself (22.4 s at 128
+    particles, past the client's timeout). Sessions are replayed on a thread at start-up;
+    a request meanwhile gets 409 "being restored" with Retry-After at once, which the Python
+    client waits out; the step is the one before the restart."""
+    from api.client import TMOCClient
+
+    db = tmp_path / "restore.sqlite"
+    robot = SimulatedReality("container", {"n_blocks": 8}, {"block_sizes": np.full(8, 0.050)})
+    srv = Server(db, token=None).start()
+    try:
+        with srv.client() as c:
+            obs = robot.start_episode(np.random.default_rng(0))
+            r = c.post("/v1/sessions", json={"particles": 48, "episodes": 1, "max_steps": 20, "seed": 4,
+                                             "observation": {"configuration": obs.configuration.to_dict()}})
+            assert r.status_code == 201, r.text
+            sid, step = r.json()["id"], r.json()["next"]
+            for _ in range(4):
+                out = robot.execute(np.array(step["trajectory"]), step["action"])
+                r = c.post(f"/v1/sessions/{sid}/observations",
+                           json={"action": step["action"], "step_id": step["step_id"],
+                                 "configuration": out.configuration.to_dict()})
+                assert r.status_code == 200, r.text
+                step = r.json()["next"]
+        srv.stop()
+        srv = Server(db, token=None).start()
+        with srv.client() as c:
+            t0 = time.perf_counter()
+            first = c.get(f"/v1/sessions/{sid}/next")
+            answered = time.perf_counter() - t0
+            assert answered < 2.0, answered                     # never the replay's seconds
+            if first.status_code == 409:                          # a fast machine may be done
+                assert "being restored" in first.json()["detail"], first.text
+                assert first.headers["retry-after"]
+            else:
+                assert first.status_code == 200, first.text
+        with TMOCClient(srv.base) as client:
+            nxt = client._call("GET", f"/v1/sessions/{sid}/next")["pending"]
+        assert nxt["step_id"] == step["step_id"] and nxt["action"] == step["action"]
+        np.testing.assert_array_equal(nxt["trajectory"], step["trajectory"])
+    finally:
+        srv.stop()
+        robot.close()
+
+
+def test_an_abandoned_session_stops_holding_a_slot(tmp_path):
+    """Row 14: abandoned sessions (a create retried after a lost reply leaks one) held
+    --max-sessions slots forever. One idle for --session-idle-s no longer counts; it
+    still answers when its robot comes back."""
+    srv = Server(tmp_path / "idle.sqlite", "--max-sessions", "1", "--session-idle-s", "3",
+                 token=None).start()
+    try:
+        with srv.client() as c:
+            spec = {"particles": 2, "episodes": 1, "n_blocks": 2}
+            first = c.post("/v1/sessions", json=spec)
+            assert first.status_code == 201, first.text
+            full = c.post("/v1/sessions", json=spec)
+            assert full.status_code == 429
+            assert "idle for 3 s (--session-idle-s) stops counting" in full.json()["detail"]
+            time.sleep(3.5)
+            assert c.post("/v1/sessions", json=spec).status_code == 201
+            back = c.get(f"/v1/sessions/{first.json()['id']}")
+            assert back.status_code == 200 and back.json()["status"] == "active"
+    finally:
+        srv.stop()
 
 
 def test_the_docs_page_runs_only_the_service_s_own_scripts(server, client):

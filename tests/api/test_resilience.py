@@ -194,6 +194,9 @@ def test_a_replayed_observation_changes_nothing_and_other_sessions_refuse_it(tmp
         srv.stop()
         srv.start()
         with srv.client() as c:
+            # (restored on a thread at start-up: 409 "being restored" until it is)
+            wait_for(lambda: c.get(f"/v1/sessions/{first['id']}/next").status_code != 409,
+                     every=0.1, what="the session's restore")
             again = c.post(f"/v1/sessions/{first['id']}/observations", json=obs)
             assert again.status_code == 200 and again.json() == r.json()
     finally:
@@ -308,6 +311,7 @@ def test_a_graceful_stop_with_an_open_stream_is_quick_and_leaves_no_ray_processe
         time.sleep(0.5)
     srv._reap_group()
     assert stopped < 12, (stopped, srv.log())
+    assert srv.proc.returncode == 0, srv.proc.returncode      # issue 25: a clean stop exited -15
     assert gone_by is not None, "Ray processes outlived the server by 20 s"
     assert "Traceback" not in srv.log(), srv.log()
     with sqlite3.connect(srv.db) as con:                  # left to resume, as documented

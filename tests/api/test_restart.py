@@ -60,6 +60,9 @@ def test_sigkill_mid_task_then_restart_resumes_without_loss_or_duplicates(tmp_pa
         try:
             with second.client() as c:
                 # The session is rebuilt where it was: same pending action and trajectory.
+                # (it is replayed on a thread at start-up: until then, 409 "being restored")
+                wait_for(lambda: c.get(f"/v1/sessions/{session}/next").status_code == 200,
+                         every=0.1, what="the session's restore")
                 nxt = c.get(f"/v1/sessions/{session}/next").json()["pending"]
                 assert nxt["action"] == step["action"] and nxt["step"] == 2
                 np.testing.assert_array_equal(nxt["trajectory"], step["trajectory"])

@@ -63,6 +63,14 @@ def test_bad_states_name_the_atom(atoms, message):
         sp.parse_state(atoms)
 
 
+def test_atoms_are_kept_canonical_whatever_their_spelling():
+    """Issue 25, row 14: "on(b1,start)." passed the parser and was kept as sent, so the
+    planner later failed on it (a 409 "cannot plan" for a state that was accepted)."""
+    sent = sp.parse_state(["on(b1,start).", " on( b2 , b1 ) ", "is_holding(r,b3)."])
+    assert sent == sp.parse_state(["on(b1,start)", "on(b2,b1)", "is_holding(r,b3)"])
+    assert sp.StackAndPushTask().context_of(sent, "stack(r,b3,tower)") == ("stack", 2)
+
+
 def test_contexts_are_tower_heights_and_unknown_actions_raise():
     task = sp.StackAndPushTask()
     assert task.contexts(3) == (("pickup", 0), ("stack", 0), ("stack", 1), ("stack", 2),
