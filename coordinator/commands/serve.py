@@ -15,6 +15,7 @@ import os
 import socket
 import sqlite3
 
+from ..reaper import clean, start_reaper
 from ..run_config import field_bounds
 from . import UsageError
 
@@ -177,8 +178,12 @@ def main(args) -> int:
                             timeout_graceful_shutdown=10, lifespan="on",
                             limit_concurrency=args.max_connections)
     server = _Server(config, app)
+    # Our own Ray's agents outlived a kill -9 by 60 s; a reaper takes them down (issue 25).
+    # A cluster we join is not ours to reap.
+    reaper = start_reaper() if not args.ray_address else None
     try:
         server.run()
+        clean(reaper)
     finally:
         lock.close()
     return 0 if server.started else 1

@@ -344,6 +344,33 @@ def test_an_abandoned_session_stops_holding_a_slot(tmp_path):
         srv.stop()
 
 
+def test_after_kill_9_ray_goes_within_seconds(tmp_path):
+    """Row 14: after `kill -9` of the server two of Ray's agents lived 60-120 s (they wait
+    a fixed 60 s for a GCS that is gone). The server's reaper takes them down."""
+    import signal
+
+    from coordinator.reaper import alive, descendants
+
+    srv = Server(tmp_path / "k9.sqlite", token=None).start()
+    try:
+        with srv.client() as c:
+            tid = c.post("/v1/tasks", json={"particles": 2, "episodes": 1, "n_blocks": 2,
+                                            "frames": False}).json()["id"]
+            wait_for(lambda: c.get(f"/v1/tasks/{tid}").json()["status"] == "succeeded", timeout=180,
+                     what="a task (Ray started)")
+        started = descendants(srv.proc.pid)
+        assert len(started) >= 4, started                # GCS, raylet, agents, workers, reaper
+        srv.proc.send_signal(signal.SIGKILL)
+        srv.proc.wait(30)
+        t0 = time.monotonic()
+        while time.monotonic() - t0 < 20 and any(alive(p, s) for p, s in started.items()):
+            time.sleep(0.25)
+        left = [Path(f"/proc/{p}/cmdline").read_bytes()[:60] for p, s in started.items() if alive(p, s)]
+        assert not left, (time.monotonic() - t0, left)
+    finally:
+        srv.stop()
+
+
 def test_the_docs_page_runs_only_the_service_s_own_scripts(server, client):
     """Row 13: /docs loaded Swagger's script from a CDN (floating version, no SRI, no CSP)
     into a page with the session cookie's rights. It is served from the installed
