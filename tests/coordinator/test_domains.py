@@ -19,8 +19,18 @@ NAMES = domains.names()
 
 
 def test_the_built_in_domains_are_registered():
-    assert "container" in NAMES
+    # Both, by name: a built-in left out of the registry (it was dropped when a half failed
+    # to import) would shrink every test parametrised over NAMES, which would still pass.
+    assert {"container", "stack_and_push"} <= set(NAMES)
     assert set(domains.BUILTIN) <= set(NAMES)
+
+
+def test_a_built_in_whose_half_fails_to_import_is_an_error(monkeypatch):
+    monkeypatch.setitem(domains.BUILTIN, "half_built", domains.DomainSpec(
+        "half_built", "sim_workers.no_such_module:Domain", "planner.container:ContainerTask"))
+    assert "half_built" in domains.names()
+    with pytest.raises(ValueError, match="no_such_module"):
+        domains.load("half_built", n_blocks=2)
 
 
 @pytest.mark.slow          # the session's Ray (the --no-ray checks stay fast, below)
