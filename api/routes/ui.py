@@ -117,10 +117,14 @@ async def login(request: Request, settings: SettingsDep, sessions: CookieSession
 
 
 def cross_site(request: Request) -> bool:
-    """A browser's request from another site: Sec-Fetch-Site says so, or the Origin it
-    sends is not this server's. A request without either (a script, an old browser) is not."""
-    if request.headers.get("sec-fetch-site", "").lower() == "cross-site":
-        return True
+    """A browser's request from another page than ours. Sec-Fetch-Site, which every current
+    browser sends, decides: only `same-origin` (our page) and `none` (typed, a bookmark)
+    pass. Without it (a script, an old browser) an Origin must be this server's; our page's
+    own form sends `Origin: null` under its `no-referrer` policy, as a sandboxed frame
+    would, so `null` passes only with Sec-Fetch-Site."""
+    fetch_site = request.headers.get("sec-fetch-site")
+    if fetch_site is not None:
+        return fetch_site.lower() not in ("same-origin", "none")
     origin = request.headers.get("origin")
     if origin is None:
         return False
