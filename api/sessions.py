@@ -206,9 +206,10 @@ class SessionManager:
         (oldest first), each under its lock; returns how many. Run on a thread at start-up:
         a replay costs the episode's simulations again (22 s at 128 particles and 6 steps,
         issue 25), so the first request must not pay for it past the client's timeout.
-        Meanwhile requests to a session get 409 "being restored" with Retry-After."""
+        Meanwhile requests to a session get 409 "being restored" with Retry-After. Idle
+        sessions (`idle_s`) are left to the request that brings their robot back."""
         done = 0
-        for session_id in self.store.sessions_to_restore():
+        for session_id in self.store.sessions_to_restore(self.idle_s):
             if stopping.is_set():
                 break
             self._restoring.add(session_id)

@@ -331,11 +331,13 @@ class Store:
         total = self._one("SELECT COUNT(*) FROM sessions")[0]
         return [_row(r, _SESSION_JSON) for r in rows], total
 
-    def sessions_to_restore(self) -> list[str]:
-        """Active sessions in the middle of an episode, oldest first: after a restart their
-        episode is replayed (see ``SessionManager.restore``)."""
+    def sessions_to_restore(self, idle_s: float = float("inf")) -> list[str]:
+        """Active sessions in the middle of an episode and changed within the last `idle_s`
+        seconds, oldest first: after a restart their episode is replayed (see
+        ``SessionManager.restore``); idle ones wait for their robot to come back."""
+        since = time.time() - idle_s if idle_s != float("inf") else float("-inf")
         rows = self._all("SELECT id FROM sessions WHERE status = 'active' AND in_episode = 1 "
-                         "ORDER BY seq", ())
+                         "AND updated_at > ? ORDER BY seq", (since,))
         return [r[0] for r in rows]
 
     def session_steps(self, session_id: str, episode: int) -> list[dict]:
