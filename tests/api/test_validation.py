@@ -47,6 +47,16 @@ def test_malformed_bodies_get_422(client, content):
     assert r.json()["message"].split(":")[0] in ("body", "particles"), r.json()
 
 
+@pytest.mark.parametrize("path", ["/v1/tasks", "/v1/sessions"])
+def test_a_body_that_is_not_json_is_named_as_such(client, path):
+    """Issue 25, row 14: under the per-domain union, `text/plain` got pydantic's generic
+    "valid dictionary" message (the union's tag in `loc` defeated the check)."""
+    r = client.post(path, content=b"hello", headers={"Content-Type": "text/plain"})
+    assert r.status_code == 422
+    assert r.json()["message"] == ("body: expected a JSON object sent with Content-Type: "
+                                   "application/json (got text/plain)"), r.text
+
+
 def test_oversized_bodies_get_413(client):
     r = client.post("/v1/tasks", content=b"[" + b"0," * (3 * 1024 * 1024) + b"0]",
                     headers={"content-type": "application/json"})
