@@ -306,7 +306,7 @@ class Store:
         with self._write() as db:
             if max_active is not None:
                 active = db.execute("SELECT COUNT(*) FROM sessions WHERE status = 'active' AND updated_at > ?",
-                                    (now - idle_s if idle_s != float("inf") else float("-inf"),)).fetchone()[0]
+                                    (now - idle_s,)).fetchone()[0]
                 if active >= max_active:
                     raise QueueFull(active, max_active)
             db.execute(
@@ -335,7 +335,7 @@ class Store:
         """Active sessions in the middle of an episode and changed within the last `idle_s`
         seconds, oldest first: after a restart their episode is replayed (see
         ``SessionManager.restore``); idle ones wait for their robot to come back."""
-        since = time.time() - idle_s if idle_s != float("inf") else float("-inf")
+        since = time.time() - idle_s             # -inf when no session is ever idle
         rows = self._all("SELECT id FROM sessions WHERE status = 'active' AND in_episode = 1 "
                          "AND updated_at > ? ORDER BY seq", (since,))
         return [r[0] for r in rows]

@@ -27,7 +27,6 @@ import collections
 import json
 import os
 import signal
-import socket
 import subprocess
 import sys
 import tempfile
@@ -38,6 +37,7 @@ import httpx
 import numpy as np
 
 from api.client import TMOCClient
+from bench_api import free_port, pct   # benchmarks/ is on sys.path when run as a script
 from coordinator.reality import SimulatedReality
 
 TOKEN = "soak-token-0123456789"
@@ -45,17 +45,6 @@ TASK = {"agent": "tmoc", "particles": 8, "episodes": 2, "n_blocks": 4, "max_step
         "frames": False}
 SESSION = {"particles": 8, "episodes": 1, "n_blocks": 4, "max_steps": 30, "seed": 3}
 TIMINGS = ("wall_s", "physics_s", "planning_s")
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
-def pct(values: list[float], q: float) -> float:
-    v = sorted(values)
-    return v[min(len(v) - 1, int(round(q / 100 * (len(v) - 1))))]
 
 
 def _strip(records: list[dict]) -> list[dict]:
