@@ -13,10 +13,15 @@ from typing import Callable
 
 import numpy as np
 
+import dataclasses
+
+from planner.domain import TaskDomain
+from sim_workers.base import PhysicsDomain, missing_members
+from sim_workers.domains import import_string
 from sim_workers.grounded_world import GroundedWorld
 from sim_workers.properties import PropertyError
 
-from .domains import Domain, load
+from .domains import Domain, load, spec
 from .transit import workspace_of
 
 
@@ -32,6 +37,29 @@ class CheckResult:
                 "seconds": round(self.seconds, 3)}
 
 
+def check_structure(name: str) -> str:
+    """Both halves implement their base class (sim_workers.base.PhysicsDomain,
+    planner.domain.TaskDomain): every missing member is named, before anything is built."""
+    s = spec(name)
+    problems = []
+    for half, path, base in (("physics", s.physics, PhysicsDomain), ("task", s.task, TaskDomain)):
+        obj = import_string(path)
+        if not isinstance(obj, type):
+            continue        # a factory: its product is checked when the domain is loaded
+        missing = missing_members(obj, base)
+        if missing:
+            problems.append(f"{half} half {path} lacks {', '.join(missing)}")
+    assert not problems, "; ".join(problems)
+    return f"{s.physics} and {s.task} implement the protocol"
+
+
+def check_spec(d: Domain) -> str:
+    """The physics half's options are a dataclass holding the object count."""
+    assert dataclasses.is_dataclass(d.physics.spec), "physics.spec is not a dataclass of options"
+    assert 1 <= d.n_blocks <= d.physics.max_blocks, f"n_blocks {d.n_blocks} outside [1, {d.physics.max_blocks}]"
+    return f"{len(dataclasses.fields(d.physics.spec))} fields"
+
+
 def _truth(d: Domain) -> dict:
     return d.physics.true_properties()
 
@@ -41,8 +69,8 @@ def _sized(d: Domain, size: float) -> dict:
 
 
 def _prior(d: Domain) -> tuple[float, float]:
-    sp = d.physics.spec
-    return float(sp.prior_low), float(sp.prior_high)
+    L = d.physics.L
+    return float(L.low[0]), float(L.high[0])
 
 
 def _first_actions(d: Domain, k: int = 3) -> list[tuple[frozenset, str]]:
@@ -193,20 +221,14 @@ def check_y(d: Domain) -> str:
 
 
 def check_y_batch(d: Domain) -> str:
-    """A domain's vectorised Y (`action_poses`, optional) is its per-row Y to the bit, for
-    rows of L drawn over the prior: the coordinator calls it for every particle."""
-    many = getattr(d.physics, "action_poses", None)
-    if many is None:
-        return "no action_poses (the coordinator calls action_pose per particle)"
-    from .domains import property_space
-
-    L = property_space(d.physics)
+    """A domain's vectorised Y (`action_poses`) is its per-row Y to the bit, for rows of L
+    drawn over the prior: the coordinator calls it for every particle."""
+    L = d.physics.L
     rows = np.random.default_rng(0).uniform(L.low, L.high, size=(16, len(L.names)))
     config = d.physics.initial_configuration(_truth(d))
-    props = getattr(d.physics, "props_from_row", None) or (lambda r: _sized(d, r[0]))
     for _, action in _first_actions(d):
-        batch = many(rows, config, action)
-        single = np.array([d.physics.action_pose(props(r), config, action) for r in rows])
+        batch = d.physics.action_poses(rows, config, action)
+        single = np.array([d.physics.action_pose(d.physics.props_from_row(r), config, action) for r in rows])
         assert batch.shape == single.shape and np.array_equal(batch, single), \
             f"action_poses({action}) differs from action_pose row by row"
     return f"{len(rows)} rows x {len(_first_actions(d))} actions, bit for bit"
@@ -223,8 +245,7 @@ def check_measurements(d: Domain) -> str:
     from .domains import measurement_channels
 
     chans = measurement_channels(d.physics)
-    if hasattr(d.physics, "measurement_channels"):
-        assert len(chans) == len(m), f"{len(chans)} channels described, {len(m)} measured"
+    assert len(chans) == len(m), f"{len(chans)} channels described, {len(m)} measured"
     idx, sigma = d.physics.measurement_model()
     assert len(idx) == len(sigma), "channel indices and sigmas differ in length"
     assert np.all((np.asarray(idx) >= 0) & (np.asarray(idx) < len(m))), "a channel index is out of range"
@@ -233,6 +254,8 @@ def check_measurements(d: Domain) -> str:
 
 
 CHECKS: dict[str, Callable[[Domain], str]] = {
+    "structure": check_structure,
+    "spec": check_spec,
     "initial_state": check_initial_state,
     "place_keeps_state": check_place_keeps_state,
     "refused_properties": check_refused_properties,
@@ -247,12 +270,20 @@ CHECKS: dict[str, Callable[[Domain], str]] = {
 def check_domain(name: str, *, ray_actors: bool = True, **options) -> list[CheckResult]:
     """Run every check on domain `name`; one result per check (never raises for a
     failed check, so a report lists them all)."""
-    d = load(name, **options)
     results = []
+    d = None
     for check, fn in CHECKS.items():
         t0 = time.perf_counter()
         try:
-            detail = fn(d, ray_actors) if fn is check_determinism else fn(d)
+            if fn is check_structure:
+                detail = fn(name)
+            else:
+                if d is None:
+                    if not results[0].ok:
+                        # Nothing can be built from an incomplete protocol: one report.
+                        return results
+                    d = load(name, **options)
+                detail = fn(d, ray_actors) if fn is check_determinism else fn(d)
             results.append(CheckResult(check, True, detail, time.perf_counter() - t0))
         except Exception as exc:  # noqa: BLE001 - each failure is reported by name
             results.append(CheckResult(check, False, f"{type(exc).__name__}: {exc}",

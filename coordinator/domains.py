@@ -22,7 +22,9 @@ import math
 from dataclasses import dataclass
 from typing import Any
 
+from planner.domain import TaskDomain
 from sim_workers import domains as physics_registry
+from sim_workers.base import missing_members
 from sim_workers.properties import PropertySpace
 
 
@@ -102,7 +104,11 @@ def task_half(name: str):
     """The task half of a domain (one instance per process: it holds no state)."""
     if name not in _TASKS:
         factory = physics_registry.import_string(spec(name).task)
-        _TASKS[name] = factory() if isinstance(factory, type) else factory
+        task = factory() if isinstance(factory, type) else factory
+        if not isinstance(task, TaskDomain):
+            raise ValueError(f"domain {name!r}: its task half {type(task).__name__} does not implement "
+                             f"planner.domain.TaskDomain (missing: {', '.join(missing_members(type(task), TaskDomain))})")
+        _TASKS[name] = task
     return _TASKS[name]
 
 
@@ -140,29 +146,19 @@ def describe(name: str, **options) -> dict:
         "actions": list(task.action_names),
         "contexts": [list(c) for c in task.contexts(int(sp.n_blocks))],
         "utility": dict(task.default_costs),
-        "probe_actions": list(getattr(phys, "probe_actions", ())),
+        "probe_actions": list(phys.probe_actions),
         "options": options_of(phys),
     }
 
 
 def property_space(phys) -> PropertySpace:
-    """L of a physics half: its own ``L`` when it has one, else the block size alone."""
-    desc = getattr(phys, "L", None)
-    if desc is not None:
-        return desc
-    sp = phys.spec
-    return PropertySpace(("size",), ("m",), (float(sp.prior_low),), (float(sp.prior_high),),
-                         (float(sp.true_size),))
+    """L of a physics half (its ``L``)."""
+    return phys.L
 
 
 def measurement_channels(phys) -> list[dict]:
     """Every measurement channel (name, index, unit, sigma; sigma None: not weighed)."""
-    own = getattr(phys, "measurement_channels", None)
-    if own is not None:
-        return [dict(c) for c in own()]
-    idx, sigma = phys.measurement_model()
-    return [{"name": "finger_opening" if i == 0 else f"channel_{i}", "index": int(i),
-             "unit": "m", "sigma": float(sg)} for i, sg in zip(idx, sigma)]
+    return [dict(c) for c in phys.measurement_channels()]
 
 
 _OPTION_TYPES = (bool, int, float, str, type(None))
@@ -171,12 +167,9 @@ _NOT_OPTIONS = ("n_blocks", "true_size")
 
 def options_of(phys) -> dict:
     """The options a physics half takes (its spec's scalar fields) with their defaults."""
-    spec = getattr(phys, "spec", None)
-    if spec is None or not dataclasses.is_dataclass(spec):
-        return {}
+    values = {f.name: getattr(phys.spec, f.name) for f in dataclasses.fields(phys.spec)}
     # The truth and the block count have their own settings (truth/true_size, n_blocks).
-    return {f.name: getattr(spec, f.name) for f in dataclasses.fields(spec)
-            if isinstance(getattr(spec, f.name), _OPTION_TYPES) and f.name not in _NOT_OPTIONS}
+    return {k: v for k, v in values.items() if isinstance(v, _OPTION_TYPES) and k not in _NOT_OPTIONS}
 
 
 def _option_value(key: str, value: Any, default: Any) -> Any:

@@ -13,7 +13,7 @@ import numpy as np
 
 from sim_workers.configuration import Configuration
 from sim_workers.grounded_world import GroundedWorld
-from sim_workers.reality_gap import RealityGap, executed, jitter_planar, jittered_domain, push_time_jitter
+from sim_workers.reality_gap import RealityGap, action_jitter, executed, jitter_planar, jittered_domain
 
 
 @dataclass(frozen=True)
@@ -89,16 +89,16 @@ class SimulatedReality:
                                 self.gap.placement_m, self.gap.yaw_rad)
         placed = self.world.reset(Configuration(config.robot, objects), self.truth)
         self._domain, self._start = domain, placed
-        # The arm's own timing varies push to push; a child stream, so the episode's draws
-        # above (and a domain without the jitter) are as before.
-        self._push_jitter = push_time_jitter(domain)
-        self._exec_rng = rng.spawn(1)[0] if self._push_jitter > 0 else None
+        # The arm's own timing varies action to action; a child stream, so the episode's
+        # draws above (and a domain without the jitter) are as before.
+        jitters = domain.execution_jitter.values()
+        self._exec_rng = rng.spawn(1)[0] if any(j > 0 for j in jitters) else None
         self._state = domain.symbolic_state(placed)
         return Observation(placed, self._state, domain.measurements(placed))
 
     def execute(self, trajectory: np.ndarray, action: str) -> Observation:
         if self._exec_rng is not None:
-            trajectory = executed(trajectory, action, self._exec_rng, self._push_jitter)
+            trajectory = executed(trajectory, action, self._exec_rng, action_jitter(self._domain, action))
         out = self.world.execute(trajectory, action)
         config, state = out.configuration, out.state
         if self.failure is not None and self.failure.applies(self.context_fn(self._state, action)):

@@ -136,7 +136,7 @@ class RunConfig(BaseModel):
 
     @model_validator(mode="after")
     def _truth_and_options_are_the_domains(self) -> "RunConfig":
-        from coordinator.domains import check_options, load, property_space
+        from coordinator.domains import check_options, load, options_of
 
         self.options = check_options(self.domain, dict(self.options), self.n_blocks)
         if "size" in self.truth:
@@ -148,9 +148,10 @@ class RunConfig(BaseModel):
                 raise ValueError(f"truth.size: {size} m is outside [{low}, {high}] m")
             self.true_size = float(size)
         phys = load(self.domain, n_blocks=self.n_blocks, **self.options).physics
-        L = property_space(phys)
+        L = phys.L
+        # A truth besides L's is a known property: an option of the physics (e.g. density).
         known = [n for n in self.truth if n not in L.names and n != "size"
-                 and isinstance(getattr(getattr(phys, "spec", None), n, None), float)]
+                 and isinstance(options_of(phys).get(n), float)]
         for name in known:
             value = float(self.truth.pop(name))
             if name in self.options and self.options[name] != value:
@@ -165,7 +166,7 @@ class RunConfig(BaseModel):
             if name not in L.names:
                 raise ValueError(f"truth.{name}: not a property of L for domain {self.domain!r} "
                                  f"with these options (properties: {', '.join(L.names)})")
-        if len(L.names) > 1 and hasattr(phys, "props_from_row"):
+        if len(L.names) > 1:
             # The truth must be a world the physics can build (e.g. a density > 0).
             from sim_workers.properties import PropertyError
 

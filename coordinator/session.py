@@ -88,7 +88,7 @@ class Session:
             self.belief = self._point_belief(config)
         # Likelihood, resampling kernel and lock-in watch, with their state (issue 24).
         self.reweighting = Reweighting(config, self.domain.measurement_model(),
-                                       list(getattr(self.domain, "block_names", [])),
+                                       list(self.domain.block_names),
                                        len(self.L.names), self.per_block)
         self.experience = ExperiencePool(self.task.context_of)
         self.transition = self._transition_model()
@@ -227,12 +227,10 @@ class Session:
 
     def _one_pose_class(self, keep: np.ndarray, view: Belief, config: Configuration,
                         action: str) -> np.ndarray:
-        """The mode's particles of one pose class (the domain's optional ``pose_classes``:
-        a discrete choice of Y per row of L, such as the container's tray layout)."""
-        classes = getattr(self.domain, "pose_classes", None)
-        if classes is None:
-            return keep
-        return heaviest_class(classes(view.particles, config, action), view.weights, keep)
+        """The mode's particles of one pose class (the domain's ``pose_classes``: a
+        discrete choice of Y per row of L, such as the container's tray layout)."""
+        classes = self.domain.pose_classes(view.particles, config, action)
+        return heaviest_class(classes, view.weights, keep)
 
     def _action_belief(self, action: str) -> tuple[Belief, np.ndarray]:
         """The belief as `action` sees it and the columns of L it concerns: with weights per
@@ -251,12 +249,8 @@ class Session:
         return width / width[0]
 
     def _particle_poses(self, config: Configuration, action: str) -> np.ndarray:
-        """Y_i for every particle: one vectorised call when the domain has one."""
-        many = getattr(self.domain, "action_poses", None)
-        if many is not None:
-            return many(self.belief.particles, config, action)
-        return np.array([self.domain.action_pose(self._props(row), config, action)
-                         for row in self.belief.particles])
+        """Y_i for every particle (the domain's ``action_poses``: vectorised where it can be)."""
+        return self.domain.action_poses(self.belief.particles, config, action)
 
     def _transit(self, config: Configuration, pre: np.ndarray) -> np.ndarray | None:
         """A collision-free path to the pre-pose among the observed obstacles

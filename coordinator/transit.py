@@ -17,9 +17,10 @@ from typing import Callable
 import numpy as np
 
 from planner.motion import Bounds, Transit, box_checker, plan_transit
+from sim_workers.base import DEFAULT_WORKSPACE
 from sim_workers.configuration import Configuration
 
-WORKSPACE = Bounds(np.array([-0.5, -0.6, 0.0, -np.pi]), np.array([1.2, 0.6, 0.6, np.pi]))
+WORKSPACE = Bounds(DEFAULT_WORKSPACE.low, DEFAULT_WORKSPACE.high)    # a domain's default bounds
 # 200 RRT* iterations, at most 600 to find a first path (~0.5 s); a coarse output path
 # (the trajectory interpolates between waypoints anyway).
 RRT_ITERATIONS, RRT_MAX_ITERATIONS, RRT_RESOLUTION = 200, 600, 0.05
@@ -29,10 +30,9 @@ OVER_CLEARANCE = 0.01       # m between the gripper's lowest part and the highes
 
 def workspace_of(physics) -> Bounds:
     """The motion planner's bounds for a physics half: its ``workspace`` (plain low/high
-    arrays, ``sim_workers.configuration.Workspace``: a domain may need more room) or the
-    default ``WORKSPACE``."""
-    own = getattr(physics, "workspace", None)
-    return WORKSPACE if own is None else Bounds(np.asarray(own.low), np.asarray(own.high))
+    arrays, ``sim_workers.configuration.Workspace``: a domain may need more room)."""
+    own = physics.workspace
+    return Bounds(np.asarray(own.low), np.asarray(own.high))
 
 
 def transit_checker(domain, config: Configuration, size, held: float,
@@ -69,10 +69,7 @@ def over_the_top(robot: np.ndarray, pre: np.ndarray, obstacles: list, parts: lis
 
 def transit_candidates(domain, robot: np.ndarray, pre: np.ndarray) -> list[tuple[str, np.ndarray]]:
     """The domain's candidate paths from `robot` to `pre`, (name, (M, 4) waypoints) each."""
-    own = getattr(domain, "transit_candidates", None)
-    if own is not None:
-        return [(str(name), np.asarray(w)[:, :4]) for name, w in own(robot, pre)]
-    return [("up_across_down", domain.default_transit(robot, pre)[:, :4])]
+    return [(str(name), np.asarray(w)[:, :4]) for name, w in domain.transit_candidates(robot, pre)]
 
 
 def plan_pre_pose_transit(domain, config: Configuration, pre: np.ndarray, size, held: float,

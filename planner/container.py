@@ -8,7 +8,7 @@ from typing import Iterable, Mapping, Sequence
 import numpy as np
 
 from planner import symbolic, task_model, task_planner
-from planner.domain import Context, UnknownAction
+from planner.domain import DENSITY_BOUNDS, Context, TaskDomain, UnknownAction
 from planner.terms import parse_term
 
 _ARITY = {"pickup": 3, "stack": 3, "push": 4}
@@ -52,13 +52,29 @@ def context_of(state: frozenset[str], action: str) -> Context | None:
     return ("push", k) if k > 0 else None
 
 
-class ContainerTask:
+def load_actions(loads: Sequence[int]) -> list[str]:
+    """The plan that carries `loads` blocks per trip (blocks in order)."""
+    actions, b = [], 1
+    for i, k in enumerate(loads):
+        for _ in range(int(k)):
+            actions += [f"pickup(r,b{b},init)", f"stack(r,b{b},c)"]
+            b += 1
+        actions.append("push(r,c,init,goal)")
+        if i < len(loads) - 1:
+            actions.append("push(r,c,goal,init)")
+    return actions
+
+
+class ContainerTask(TaskDomain):
     """Blocks carried to the goal in an open container: pickup 15, stack 10, push 30, fail
     50, +40 per block delivered, +80 once all are."""
 
     name = "container"
     action_names = ("pickup", "stack", "push")
     default_costs = dict(task_model.DEFAULT_COSTS)
+    # Over HTTP: the density is known to the agent (L is the size alone).
+    http_truth = {"density": {"type": float, **DENSITY_BOUNDS,
+                              "description": "the blocks' density (kg/m^3), known to the agent"}}
 
     def initial_state(self, n_blocks: int) -> frozenset[str]:
         return symbolic.initial_state(n_blocks)
@@ -99,6 +115,9 @@ class ContainerTask:
     def expected_utility(self, state: Iterable[str], actions: Sequence[str], transition: Mapping,
                          costs: Mapping | None = None) -> float:
         return task_model.expected_utility(state, actions, transition, costs)
+
+    def actions_for_loads(self, n_blocks: int, loads: Sequence[int]) -> list[str]:
+        return load_actions(loads)
 
     def step_reward(self, state: frozenset[str], action: str, next_state: frozenset[str],
                     costs: Mapping[str, float]) -> tuple[float, dict]:

@@ -13,36 +13,88 @@ context index 0, else ``{name: [p for index in order]}``.
 """
 from __future__ import annotations
 
-from typing import Iterable, Mapping, Protocol, Sequence
+import abc
+from typing import ClassVar, Iterable, Mapping, Sequence
 
 import numpy as np
 
 Context = tuple[str, int]
 
+# A solid object's density (kg/m^3) as a request may set it: the bounds of
+# ``sim_workers.properties`` (MIN_DENSITY, MAX_DENSITY), which the physics half checks
+# again (tests/coordinator/test_domain_kit.py compares them).
+DENSITY_BOUNDS = {"gt": 1.0, "le": 25000.0}
 
-class TaskDomain(Protocol):
-    """The symbolic model, T's contexts, utility terms and planner of one domain."""
 
-    name: str
-    action_names: tuple[str, ...]
-    default_costs: Mapping[str, float]     # action costs, "fail" and the reward terms
+class TaskDomain(abc.ABC):
+    """The symbolic model, T's contexts, utility terms and planner of one domain.
 
+    A domain's task half subclasses this, sets the class attributes and implements the
+    abstract methods; the others have defaults. ``http_options`` and ``http_truth`` say
+    what a task or session request may set over HTTP (``api.schemas`` builds the domain's
+    request model from them): ``{name: {type, description, ge/gt/le/lt}}``, each valid on
+    its own whatever the others say.
+    """
+
+    name: ClassVar[str]
+    action_names: ClassVar[tuple[str, ...]]
+    default_costs: ClassVar[Mapping[str, float]]     # action costs, "fail" and the reward terms
+    http_options: ClassVar[Mapping[str, dict]] = {}
+    http_truth: ClassVar[Mapping[str, dict]] = {}
+
+    @abc.abstractmethod
     def initial_state(self, n_blocks: int) -> frozenset[str]: ...
-    def parse_state(self, atoms: Iterable[str]) -> frozenset[str]: ...      # ValueError names the atom
+
+    @abc.abstractmethod
+    def parse_state(self, atoms: Iterable[str]) -> frozenset[str]:
+        """The state these atoms name (ValueError naming the first bad atom)."""
+
+    @abc.abstractmethod
     def blocks(self, state: frozenset[str]) -> list[str]: ...
-    def apply(self, state: frozenset[str], action: str) -> frozenset[str]: ...  # ValueError: unmet precondition
+
+    @abc.abstractmethod
+    def apply(self, state: frozenset[str], action: str) -> frozenset[str]:
+        """The state after `action` succeeds (ValueError: an unmet precondition)."""
+
+    @abc.abstractmethod
     def is_goal(self, state: frozenset[str]) -> bool: ...
-    def contexts(self, n_blocks: int) -> tuple[Context, ...]: ...
-    def context_of(self, state: frozenset[str], action: str) -> Context | None: ...
-    def optimistic_transition(self, n_blocks: int) -> dict: ...
+
+    @abc.abstractmethod
+    def contexts(self, n_blocks: int) -> tuple[Context, ...]:
+        """Every context T learns, in order."""
+
+    @abc.abstractmethod
+    def context_of(self, state: frozenset[str], action: str) -> Context | None:
+        """The context of `action` in `state` (None: certain, not learned; UnknownAction
+        for an action the domain does not define)."""
+
+    @abc.abstractmethod
+    def optimistic_transition(self, n_blocks: int) -> dict:
+        """T before any experience, in the planner's form."""
+
+    @abc.abstractmethod
     def plan(self, state: Iterable[str], transition: Mapping, costs: Mapping | None = None, *,
-             max_steps: int | None = None, time_limit: float = 30.0): ...            # -> Plan
+             max_steps: int | None = None, time_limit: float = 30.0):
+        """The maximum-expected-utility plan from `state` under `transition` (a Plan)."""
+
+    @abc.abstractmethod
     def satisficing(self, state: Iterable[str], *, rng: np.random.Generator,
-                    transition: Mapping | None = None, costs: Mapping | None = None): ...  # -> Plan
+                    transition: Mapping | None = None, costs: Mapping | None = None):
+        """A plan that reaches the goal without optimising (the baselines' planner)."""
+
+    @abc.abstractmethod
     def expected_utility(self, state: Iterable[str], actions: Sequence[str], transition: Mapping,
                          costs: Mapping | None = None) -> float: ...
+
+    @abc.abstractmethod
     def step_reward(self, state: frozenset[str], action: str, next_state: frozenset[str],
-                    costs: Mapping[str, float]) -> tuple[float, dict]: ...
+                    costs: Mapping[str, float]) -> tuple[float, dict]:
+        """The realised reward terms of one step and its metrics."""
+
+    def actions_for_loads(self, n_blocks: int, loads: Sequence[int]) -> list[str]:
+        """The plan that moves `loads` objects per trip in turn (the experiments judge a
+        plan's split against T*'s optimum with it)."""
+        raise NotImplementedError(f"domain {self.name!r} does not describe plans by loads")
 
 
 class UnknownAction(ValueError):

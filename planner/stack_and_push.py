@@ -14,7 +14,7 @@ from typing import Iterable, Mapping, Sequence
 import numpy as np
 
 from planner import task_model as tm, task_planner as tp
-from planner.domain import Context, UnknownAction
+from planner.domain import DENSITY_BOUNDS, Context, TaskDomain, UnknownAction
 from planner.stack_and_push_symbolic import (GOAL, PICKUP_PLACES, PLACES, ROBOT, START,  # noqa: F401
                                              TOWER, apply, block_index, blocks, check_action,
                                              held_block, initial_state, is_goal, parse_state,
@@ -188,13 +188,27 @@ def satisficing(state: Iterable[str], *, rng: np.random.Generator,
 
 # --------------------------------------------------------------------------- the protocol
 
-class StackAndPushTask:
+class StackAndPushTask(TaskDomain):
     """Blocks stacked into a tower and pushed along a rail to the goal: pickup 15, stack 10,
     push 30, fail 50, +40 per block delivered, +80 once all are; no return push."""
 
     name = "stack_and_push"
     action_names = ("pickup", "stack", "push")
     default_costs = dict(tm.DEFAULT_COSTS)
+    # What a task or session request may set over HTTP (api.schemas builds the domain's
+    # request model from these): each option valid on its own, whatever the others say.
+    # The bounds are the physics half's (sim_workers.stack_and_push: MIN_FORCE_SIGMA).
+    http_options = {
+        "unknown_density": {"type": bool, "description": "L = (size, density): learn the blocks' "
+                                                         "density from the wrist force"},
+        "force_sigma": {"type": float, "ge": 0.001, "le": 100.0,
+                        "description": "noise of the held-weight channel (N; 0.1 an external F/T "
+                                       "sensor, 3.5 a UR5e's built-in one)"},
+        "force_from_mass": {"type": bool, "description": "size the grip force and the push's force "
+                                                         "limit from the believed mass (default: "
+                                                         "when the density is unknown)"},
+    }
+    http_truth = {"density": {"type": float, **DENSITY_BOUNDS, "description": "the blocks' density (kg/m^3)"}}
 
     def initial_state(self, n_blocks: int) -> frozenset[str]:
         return initial_state(n_blocks)

@@ -13,29 +13,14 @@ from __future__ import annotations
 
 import importlib
 from importlib import metadata
-from typing import Any, Callable, Mapping, Protocol
+from typing import Any, Callable, Mapping
 
-import numpy as np
-
-from .configuration import Configuration
+from .base import PhysicsDomain, missing_members
 
 
-class Domain(Protocol):
-    """What the grounded world, the shards and the coordinator need from a domain."""
-
-    name: str
-    object_names: list[str]
-
-    def properties(self, props: dict) -> dict: ...                      # validated arrays
-    def build(self, client: int, props: dict): ...                      # -> scene handles
-    def initial_configuration(self, props: dict) -> Configuration: ...
-    def place(self, config: Configuration, props: dict) -> Configuration: ...
-    def symbolic_state(self, config: Configuration) -> frozenset[str]: ...   # Y^-1
-    def action_pose(self, props: dict, config: Configuration, action: str) -> np.ndarray: ...  # Y
-    def action_trajectory(self, config: Configuration, action: str, key: np.ndarray,
-                          transit: np.ndarray | None = None) -> np.ndarray: ...
-    def after_action(self, config: Configuration, action: str) -> Configuration: ...
-    def measurements(self, config: Configuration) -> np.ndarray: ...
+# What the grounded world, the shards and the coordinator need from a domain: the base
+# class is the protocol (sim_workers/base.py).
+Domain = PhysicsDomain
 
 
 # The physics halves shipped with the service (coordinator.domains joins them to their
@@ -100,4 +85,11 @@ def load(name: str, **options) -> Domain:
                 known = sorted(set(_REGISTRY) | set(BUILTIN) | set(plugins))
                 raise ValueError(f"domain: unknown domain {name!r} (known: {', '.join(known)})")
             register(name, import_string(plugins[name]["physics"]))
-    return _REGISTRY[name](**options)
+    domain = _REGISTRY[name](**options)
+    if not isinstance(domain, PhysicsDomain):
+        # The service calls every member of the protocol directly: a half built some
+        # other way fails here, by name, not deep inside a Ray actor.
+        missing = ", ".join(missing_members(type(domain)))
+        raise ValueError(f"domain {name!r}: its physics half {type(domain).__name__} does not "
+                         f"implement sim_workers.base.PhysicsDomain (missing: {missing})")
+    return domain

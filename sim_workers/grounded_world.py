@@ -76,7 +76,7 @@ class GroundedWorld:
         self._absent: dict[int, np.ndarray] = {}       # object index -> its pose, left out
         self._fresh = False                            # no action since the last reset
         self.reruns = 0                                # actions the guard sent to the full world
-        self.settle_s = float(getattr(domain.spec, "settle_s", 1.0))
+        self.settle_s = float(domain.settle_s)
 
     # -- lifecycle ---------------------------------------------------------------------
     def close(self) -> None:
@@ -126,7 +126,7 @@ class GroundedWorld:
         pose = tuple(float(v) for v in target[:4])
         q = float(target[4]) / 2.0 + h.finger_inner
         grip = float(target[5]) if len(target) > 5 else h.grip_force
-        limit = float(target[6]) if len(target) > 6 else self.domain.spec.base_max_force
+        limit = float(target[6]) if len(target) > 6 else self.domain.base_max_force
         if reset:
             self._sent_pose = self._sent_q = None
             pos = [pose[0], pose[1], pose[2] + h.palm_offset]
@@ -146,7 +146,7 @@ class GroundedWorld:
                                          targetPositions=[q, q], forces=[grip] * 2,
                                          physicsClientId=c)
             self._sent_q = (q, grip)
-        if limit < self.domain.spec.base_max_force:
+        if limit < self.domain.base_max_force:
             # External forces last one step: applied anew before every step.
             pb.applyExternalForce(h.gripper, -1, [0.0, 0.0, self._gripper_weight()], [0.0, 0.0, 0.0],
                                   pb.LINK_FRAME, physicsClientId=c)
@@ -245,7 +245,7 @@ class GroundedWorld:
         """Whether the domain leaves bodies out of this kind of action (its
         ``leave_out_actions``, chosen by measurement: where the saved contacts outweigh the
         guard's cost)."""
-        return action.partition("(")[0] in getattr(self.domain, "leave_out_actions", ())
+        return action.partition("(")[0] in self.domain.leave_out_actions
 
     def _leave_out(self, targets: np.ndarray) -> reach.Guard | None:
         """Remove the objects the action cannot reach (``sim_workers.reach``); None when
@@ -272,11 +272,9 @@ class GroundedWorld:
         h = self.handles
         steps = 0
         # A domain that reads sensors during the action says so; the others pay nothing.
-        logging = bool(getattr(self.domain, "logs_sensors", False))
-        if logging and hasattr(self.domain, "senses"):     # only the actions whose log is read
-            logging = bool(self.domain.senses(action))
+        logging = bool(self.domain.logs_sensors) and bool(self.domain.senses(action))
         force, opening = [], []
-        guarded = targets.shape[1] > 6 and bool(np.any(targets[:, 6] < self.domain.spec.base_max_force))
+        guarded = targets.shape[1] > 6 and bool(np.any(targets[:, 6] < self.domain.base_max_force))
         was_guarded, offset = False, np.zeros(3)
         for k, (t, target) in enumerate(zip(times, targets)):
             if guarded:
@@ -309,7 +307,7 @@ class GroundedWorld:
         reference went: the rest of the trajectory is shifted by the gap at that moment,
         as a robot continues from where a guarded move stopped (else the full wrist force
         would snap the gripper to the reference and through whatever held it back)."""
-        now_guarded = target[6] < self.domain.spec.base_max_force
+        now_guarded = target[6] < self.domain.base_max_force
         if was_guarded and not now_guarded:
             pos, _ = pb.getBasePositionAndOrientation(self.handles.gripper, physicsClientId=self.client)
             offset = np.array([pos[0], pos[1], pos[2] - self.handles.palm_offset]) - self._sent_pose[0][:3]

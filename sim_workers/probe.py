@@ -48,7 +48,7 @@ def loaded_configuration(domain, sizes: np.ndarray, load_k: int, rng: np.random.
 def probe_actions(domain_name: str) -> tuple[str, ...]:
     """The action kinds `probe` knows for a domain (empty: the domain has no probe)."""
     domain = load(domain_name)
-    return tuple(getattr(domain, "probe_actions", ())) if hasattr(domain, "probe_trial") else ()
+    return tuple(domain.probe_actions)
 
 
 def run_trial(action: str, true_size: float, believed_size: float, load_k: int,
@@ -67,8 +67,7 @@ def run_trial(action: str, true_size: float, believed_size: float, load_k: int,
 def probe_loads(domain_obj, action: str) -> range:
     """The loads a probe of `action` accepts: the domain's own (``probe_loads(action)``,
     e.g. stack_and_push stacks onto a tower of 0..n-1) or, by default, 1..n_blocks."""
-    own = getattr(domain_obj, "probe_loads", None)
-    return own(action) if own is not None else range(1, domain_obj.spec.n_blocks + 1)
+    return domain_obj.probe_loads(action)
 
 
 def probe(action: str, true_size: float, believed_size: float | None = None, load_k: int = 4,
@@ -95,7 +94,8 @@ def probe(action: str, true_size: float, believed_size: float | None = None, loa
     children = np.random.default_rng(seed).spawn(trials)
     wins = sum(run_trial(action, true_size, believed, load_k, rng, n_blocks, options, domain, believed_density)
                for rng in children)
-    true_density = getattr(world.spec, "density", None) if believed_density is not None or "density" in options else None
+    fields = {f.name: getattr(world.spec, f.name) for f in dataclasses.fields(world.spec)}
+    true_density = fields.get("density") if believed_density is not None or "density" in options else None
     return ProbeResult(action, trials, int(wins), float(true_size), float(believed), int(load_k),
                        None if true_density is None else float(true_density),
                        None if believed_density is None else float(believed_density))

@@ -1,8 +1,8 @@
 """The reality gap: how a "real" world differs from the one Y plans in (one place for it).
 
 Friction is scaled per world by U(1 +- friction); objects are placed with N(0, placement)
-clipped at 2 std and turned by U(+-yaw); a domain whose spec has ``push_time_jitter`` runs
-each real push U(1 +- jitter) times faster or slower than planned (``executed``). The
+clipped at 2 std and turned by U(+-yaw); a domain's ``execution_jitter`` makes the real
+arm run an action kind U(1 +- jitter) times faster or slower than planned (``executed``). The
 probe's trials and the coordinator's simulated reality
 (``coordinator.reality.SimulatedReality``) both draw from here, so the gap a probe
 measures is the gap the loop meets.
@@ -50,18 +50,19 @@ def jitter_planar(rng: np.random.Generator, objects: np.ndarray, rows,
     return objects
 
 
-def push_time_jitter(domain) -> float:
-    """The domain's per-push execution jitter (relative; 0 where its spec has none)."""
-    return float(getattr(domain.spec, "push_time_jitter", 0.0) or 0.0)
+def action_jitter(domain, action: str) -> float:
+    """The real arm's relative timing jitter for `action` (its kind's entry in the domain's
+    ``execution_jitter``; 0: run as commanded)."""
+    return float(domain.execution_jitter.get(action.partition("(")[0].strip(), 0.0))
 
 
 def executed(traj: np.ndarray, action: str, rng: np.random.Generator, jitter: float) -> np.ndarray:
-    """The trajectory a real arm runs for `action`: a push's timing scaled by 1/e with e ~
-    U(1 +- jitter), so its speed scales by e and its accelerations by e^2; the efforts are
-    commands the wrist meets exactly (a force-limited stroke's limit still sets its pace).
-    Any other action, or jitter 0, unchanged and without a draw (runs without the jitter
-    keep their random streams)."""
-    if jitter <= 0 or not action.startswith("push"):
+    """The trajectory a real arm runs for `action`: its timing scaled by 1/e with e ~
+    U(1 +- jitter) (`jitter`: ``action_jitter(domain, action)``), so its speed scales by e
+    and its accelerations by e^2; the efforts are commands the wrist meets exactly (a
+    force-limited stroke's limit still sets its pace). With jitter 0, unchanged and
+    without a draw (runs without the jitter keep their random streams)."""
+    if jitter <= 0:
         return traj
     e = float(rng.uniform(1.0 - jitter, 1.0 + jitter))
     out = np.array(traj, dtype=np.float64, copy=True)

@@ -77,10 +77,7 @@ class Shard:
                 "measurements": np.array(meas), "steps": np.array(steps, dtype=np.int64)}
 
     def _props(self, row: np.ndarray) -> dict:
-        expand = getattr(self.domain, "props_from_row", None)
-        if expand is not None:
-            return expand(row)
-        return {"block_sizes": np.broadcast_to(row, (self.domain.spec.n_blocks,))}
+        return self.domain.props_from_row(row)
 
     def simulate_batch(self, start: np.ndarray, sizes: np.ndarray, action: str,
                        trajectory: np.ndarray, start_time=0.0) -> dict:

@@ -114,14 +114,14 @@ def _field_of(name: str, decl: dict) -> tuple:
 
 def _domain_models(domain: str) -> tuple[type[BaseModel], type[BaseModel]]:
     """(options, truth) request models of `domain`, from what its physics half declares
-    (``http_options``, ``http_truth``): each field independently valid, so every request
-    the schema describes is one the domain accepts."""
-    from coordinator.domains import load
+    (``http_options``, ``http_truth`` of its task half): each field independently valid,
+    so every request the schema describes is one the domain accepts."""
+    from coordinator.domains import task_half
 
-    phys = load(domain).physics
+    task = task_half(domain)
     label = "".join(w.title() for w in domain.replace("-", "_").split("_"))
-    options = {k: _field_of(k, d) for k, d in dict(getattr(phys, "http_options", {}) or {}).items()}
-    truth = {k: _field_of(k, d) for k, d in dict(getattr(phys, "http_truth", {}) or {}).items()}
+    options = {k: _field_of(k, d) for k, d in dict(task.http_options).items()}
+    truth = {k: _field_of(k, d) for k, d in dict(task.http_truth).items()}
     return (_strict_model(f"{label}Options", f"Options of the {domain} domain (`tmoc domains`); "
                                              "unset ones keep the domain's defaults.", options),
             _strict_model(f"{label}Truth", f"The hidden truth of the {domain} domain besides "
@@ -142,8 +142,8 @@ def _per_domain(name: str, doc: str, fields: dict, with_truth: bool) -> Any:
     for d in names():
         opts, truth = _domain_models(d)
         own = {**fields, "options": (opts, Field(default_factory=opts, description=opts.__doc__))}
-        top = getattr(load(d).physics, "max_blocks", None)
-        if top is not None and "n_blocks" in own:
+        top = load(d).physics.max_blocks
+        if "n_blocks" in own:
             info = own["n_blocks"][1]
             own["n_blocks"] = (int, Field(min(info.default, top), ge=1, le=int(top),
                                           description=f"blocks in the scene (1..{top} in {d})"))

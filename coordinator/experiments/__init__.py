@@ -36,8 +36,8 @@ from .report import CSV_COLUMNS, SYMLOG_ABOVE, SYMLOG_LINEAR, plot, summary_tabl
 from .sweep import judge_run, prior_sizes, summarize_sweep, sweep_settings, sweep_table, write_sweep
 from .runfiles import (ResumeError, existing_runs, read_run, run_path, store_checkpoint, store_run,
                        write_atomic)
-from .true_T import (Optimality, cached_true_T, load_actions, probe_jobs, submit_probes, t_star_files,
-                     t_star_params, true_T_from_probes, true_transition, write_true_T)
+from .true_T import (Optimality, cached_true_T, probe_jobs, submit_probes, t_star_files,
+                     t_star_params, true_transition, write_true_T)
 
 __all__ = [
     "AGENTS", "CONVERGENCE_BAND", "CSV_COLUMNS", "DEFAULT_PROBE_TRIALS", "DEFAULT_SCALE",
@@ -45,10 +45,10 @@ __all__ = [
     "PARTICLE_FRACTIONS", "REGISTRY", "ROBOT_EPISODES", "ResumeError", "SYMLOG_ABOVE", "SYMLOG_LINEAR",
     "Setting", "Spec", "WEIGHTS_DOMAIN", "WEIGHTS_SIGMAS", "WEIGHTS_TRUE_DENSITY", "WEIGHTS_TRUE_SIZE",
     "cached_true_T", "convergence_episode", "default_milestones", "execute", "existing_runs",
-    "load_actions", "milestone_table", "particle_counts", "plot", "posterior_error", "probe_jobs",
+    "milestone_table", "particle_counts", "plot", "posterior_error", "probe_jobs",
     "read_run", "robot_table", "run_config", "run_cost", "run_path", "run_seed", "settings_for",
     "store_checkpoint", "store_run", "submit_probes", "summarize", "summary_table", "t_star_params",
-    "table_rows", "true_T_from_probes", "true_transition", "write_atomic", "write_csv", "write_outputs",
+    "table_rows", "true_transition", "write_atomic", "write_csv", "write_outputs",
     "write_true_T", "judge_run", "prior_sizes", "summarize_sweep", "sweep_settings", "sweep_table",
     "write_sweep", "t_star_files", "prior_truths",
 ]

@@ -56,11 +56,10 @@ def _mm(size: float) -> str:
 
 def sweep_settings(domain: str, scale: str = "default") -> list[Setting]:
     """The truths of `domain`'s sweep at `scale` ("default" or "paper")."""
-    from ..domains import load, property_space
+    from ..domains import load, options_of
 
     phys = load(domain).physics
-    spec = phys.spec
-    L = property_space(phys)
+    L = phys.L
     low, high = L.bounds(1, False)
     sizes = prior_sizes(float(low[0]), float(high[0]), SIZE_COUNTS[scale])
     out = [Setting(f"sweep-{domain}-{_mm(s)}mm", f"{_mm(s)} mm", {"agent": "tmoc", "true_size": s},
@@ -70,7 +69,7 @@ def sweep_settings(domain: str, scale: str = "default") -> list[Setting]:
         out.append(Setting(f"sweep-{domain}-{_mm(s)}mm-perblock", f"{_mm(s)} mm, per block",
                            {"agent": "tmoc", "true_size": s, "sizes_variation": True},
                            {"true_size": s}))
-    if "unknown_density" in {f for f in getattr(spec, "__dataclass_fields__", {})}:
+    if "unknown_density" in options_of(phys):
         at, densities, sigmas = DENSITY_GRID[scale]
         for i in at:
             s = sizes[i]

@@ -2,7 +2,7 @@
 
 It is estimated once from the true world with seeded ``sim_workers.probe`` trials
 (believed size = true size) and cached in ``DIR/true_T.json``; see
-``true_T_from_probes``. ``Optimality`` then judges a plan's load split against the
+the domain's ``t_star_from_probes``. ``Optimality`` then judges a plan's load split against the
 planner's optimum under T*.
 """
 from __future__ import annotations
@@ -15,47 +15,15 @@ from .catalogue import WEIGHTS_TRUE_DENSITY, Setting, Spec
 from .runfiles import jsonable, write_atomic
 
 
-def probe_jobs(n_blocks: int, domain: str = "container") -> list[tuple[str, int]]:
-    """(action, load) of every probe T* needs: pickup; stack of the first k blocks, k =
-    1..n; push with k blocks loaded, k = 1..n. A domain with other probe semantics says
-    so in its physics half (`t_star_probe_jobs`)."""
-    custom = _t_star_hooks(domain)[0]
-    if custom is not None:
-        return custom(n_blocks)
-    return ([("pickup", 1)] + [("stack", k) for k in range(1, n_blocks + 1)]
-            + [("push", k) for k in range(1, n_blocks + 1)])
-
-
-def _t_star_hooks(domain: str):
-    """(probe_jobs, from_probes) of a domain's physics half, or (None, None): the container's."""
-    if domain == "container":
-        return None, None
+def _physics(domain: str):
     from sim_workers.domains import load
 
-    phys = load(domain)
-    return getattr(phys, "t_star_probe_jobs", None), getattr(phys, "t_star_from_probes", None)
+    return load(domain)
 
 
-def true_T_from_probes(successes: dict[tuple[str, int], int], trials: int, n_blocks: int) -> dict:
-    """T* in the planner's form from probe success counts.
-
-    pickup: its success rate. push[k-1]: the rate of a push with k blocks loaded.
-    stack[h] (h blocks already in the container): a stack probe of k blocks succeeds when
-    all k pickups and stacks do, and trial t of every k replays the same seeded world, so
-    S(h+1) / S(h) (S(0) = trials) is the rate of "pick up, then stack on h"; dividing by
-    the pickup rate leaves the stack's (clipped to [0, 1]). A height no trial reached
-    (S(h) = 0) gets 0: never seen to succeed.
-    """
-    p_pickup = successes[("pickup", 1)] / trials
-    S = [trials] + [successes[("stack", k)] for k in range(1, n_blocks + 1)]
-    stack = []
-    for h in range(n_blocks):
-        if S[h] == 0 or p_pickup == 0:
-            stack.append(0.0)
-        else:
-            stack.append(float(min(1.0, S[h + 1] / S[h] / p_pickup)))
-    push = [successes[("push", k)] / trials for k in range(1, n_blocks + 1)]
-    return {"pickup": float(p_pickup), "stack": stack, "push": [float(p) for p in push]}
+def probe_jobs(n_blocks: int, domain: str = "container") -> list[tuple[str, int]]:
+    """(action, load) of every probe T* needs: the domain's ``t_star_probe_jobs``."""
+    return _physics(domain).t_star_probe_jobs(n_blocks)
 
 
 def t_star_params(spec: Spec, n_blocks: int = 8, setting: Setting | None = None) -> dict:
@@ -138,7 +106,7 @@ def write_true_T(out: Path, params: dict, counts: Sequence[int], name: str = "tr
     domain = params.get("domain", "container")
     jobs = probe_jobs(params["n_blocks"], domain)
     successes = dict(zip(jobs, (int(c) for c in counts)))
-    from_probes = _t_star_hooks(domain)[1] or true_T_from_probes
+    from_probes = _physics(domain).t_star_from_probes
     data = {"params": jsonable(params),
             "transition": from_probes(successes, params["trials"], params["n_blocks"]),
             "successes": {f"{a}:{k}": successes[(a, k)] for a, k in jobs},
@@ -162,19 +130,6 @@ def true_transition(out: Path, params: dict,
     return write_true_T(out, params, executor(params), name), False
 
 
-def load_actions(loads: Sequence[int]) -> list[str]:
-    """The container plan that carries `loads` blocks per trip (blocks in order)."""
-    actions, b = [], 1
-    for i, k in enumerate(loads):
-        for _ in range(k):
-            actions += [f"pickup(r,b{b},init)", f"stack(r,b{b},c)"]
-            b += 1
-        actions.append("push(r,c,init,goal)")
-        if i < len(loads) - 1:
-            actions.append("push(r,c,goal,init)")
-    return actions
-
-
 class Optimality:
     """Is a plan's load split an expected-utility optimum under T*? A split is optimal when
     its expected utility equals the planner's optimum (ties count: 5+3 and 3+5 are worth
@@ -189,12 +144,10 @@ class Optimality:
         best = self.task.plan(self.state, transition, costs)
         self.best_loads = list(best.loads)
         self.best_value = float(best.expected_utility)
-        self._actions_for = getattr(self.task, "actions_for_loads", None) \
-            or (lambda n, loads: load_actions(loads))
         self._cache: dict[tuple[int, ...], bool] = {}
 
     def value(self, loads: Sequence[int]) -> float:
-        return self.task.expected_utility(self.state, self._actions_for(self.n_blocks, loads),
+        return self.task.expected_utility(self.state, self.task.actions_for_loads(self.n_blocks, loads),
                                           self.T, self.costs)
 
     def __call__(self, loads: Sequence[int]) -> bool | None:

@@ -6,6 +6,7 @@ import re
 
 import numpy as np
 
+from ..base import PhysicsDomain
 from ..configuration import Configuration
 from ..obstacles import Box, body_box, cube_box, hand_boxes, per_block
 from ..properties import MAX_DENSITY, MIN_DENSITY, SIZES_VARIATION_SCALE, PropertyError, block_properties
@@ -13,7 +14,7 @@ from . import columns, probes, scene, state_mapping, trajectories
 from .spec import ContainerSpec
 
 
-class ContainerDomain:
+class ContainerDomain(PhysicsDomain):
     """Blocks, an open container and a floating gripper; L = the blocks' side lengths."""
 
     name = "container"
@@ -37,10 +38,6 @@ class ContainerDomain:
         if not MIN_DENSITY < spec.density <= MAX_DENSITY:
             raise ValueError(f"density: {spec.density} kg/m^3 is outside ({MIN_DENSITY:g}, {MAX_DENSITY:g}]")
         self.spec = spec
-
-    # Over HTTP (api.schemas): the density is known to the agent (L is the size alone).
-    http_truth = {"density": {"type": float, "gt": MIN_DENSITY, "le": MAX_DENSITY,
-                              "description": "the blocks' density (kg/m^3), known to the agent"}}
 
     # -- data -----------------------------------------------------------------------
     @property
@@ -67,11 +64,6 @@ class ContainerDomain:
         if not isinstance(props, dict):
             raise PropertyError("properties: expected a mapping with 'block_sizes'")
         return block_properties(props, self.spec.n_blocks, self.spec.density)
-
-    def props_from_row(self, row: np.ndarray) -> dict:
-        """A row of L (what the wire carries: one size for every block, or one per block)
-        as the properties a world is built from."""
-        return {"block_sizes": np.broadcast_to(np.asarray(row, dtype=np.float64), (self.spec.n_blocks,))}
 
     # -- physics ---------------------------------------------------------------------
     def build(self, client: int, props: dict) -> scene.SceneHandles:
@@ -167,7 +159,7 @@ class ContainerDomain:
         holding = any(a.startswith("is_holding") for a in self.symbolic_state(config))
         return trajectories.pre_pose(self.spec, action, key, holding)
 
-    def measurements(self, config: Configuration) -> np.ndarray:
+    def measurements(self, config: Configuration, log=None, action: str = "") -> np.ndarray:
         """The gripper's finger opening, then planar block positions (x, y per block).
 
         What a robot measures without knowing sizes: its own gripper width (after a grasp
@@ -202,6 +194,9 @@ class ContainerDomain:
                     rng: np.random.Generator) -> bool:
         """One seeded trial of `action` in this (already jittered) world."""
         return probes.probe_trial(self, action, true_size, believed_size, load_k, rng)
+
+    t_star_probe_jobs = staticmethod(probes.t_star_probe_jobs)
+    t_star_from_probes = staticmethod(probes.true_T_from_probes)
 
     def check_action(self, action: str) -> None:
         name, args = state_mapping.parse_action(action)

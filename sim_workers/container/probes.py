@@ -61,3 +61,32 @@ def probe_trial(domain, action: str, true_size: float, believed_size: float, loa
             config = out.configuration
         return all(f"at_container(b{i + 1},c)" in out.state for i in range(load_k)) \
             and "hand_empty(r)" in out.state
+
+
+def t_star_probe_jobs(n_blocks: int) -> list[tuple[str, int]]:
+    """(action, load) of every probe T* needs: pickup; stack of the first k blocks, k =
+    1..n; push with k blocks loaded, k = 1..n."""
+    return ([("pickup", 1)] + [("stack", k) for k in range(1, n_blocks + 1)]
+            + [("push", k) for k in range(1, n_blocks + 1)])
+
+
+def true_T_from_probes(successes: dict[tuple[str, int], int], trials: int, n_blocks: int) -> dict:
+    """T* in the planner's form from probe success counts.
+
+    pickup: its success rate. push[k-1]: the rate of a push with k blocks loaded.
+    stack[h] (h blocks already in the container): a stack probe of k blocks succeeds when
+    all k pickups and stacks do, and trial t of every k replays the same seeded world, so
+    S(h+1) / S(h) (S(0) = trials) is the rate of "pick up, then stack on h"; dividing by
+    the pickup rate leaves the stack's (clipped to [0, 1]). A height no trial reached
+    (S(h) = 0) gets 0: never seen to succeed.
+    """
+    p_pickup = successes[("pickup", 1)] / trials
+    S = [trials] + [successes[("stack", k)] for k in range(1, n_blocks + 1)]
+    stack = []
+    for h in range(n_blocks):
+        if S[h] == 0 or p_pickup == 0:
+            stack.append(0.0)
+        else:
+            stack.append(float(min(1.0, S[h + 1] / S[h] / p_pickup)))
+    push = [successes[("push", k)] / trials for k in range(1, n_blocks + 1)]
+    return {"pickup": float(p_pickup), "stack": stack, "push": [float(p) for p in push]}

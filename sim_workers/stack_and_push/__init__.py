@@ -7,6 +7,7 @@ import dataclasses
 
 import numpy as np
 
+from ..base import PhysicsDomain
 from ..configuration import Configuration, Workspace
 from ..container.scene import GRIPPER_MASS
 from ..obstacles import Box, cube_box, hand_boxes, per_block
@@ -18,7 +19,7 @@ MAX_BLOCKS = 8
 MIN_FORCE_SIGMA = 0.001     # N
 
 
-class StackAndPushDomain:
+class StackAndPushDomain(PhysicsDomain):
     """Cubes, a guide rail and a floating gripper; L = the blocks' side lengths."""
 
     name = "stack_and_push"
@@ -69,6 +70,11 @@ class StackAndPushDomain:
         return self.spec.block_names
 
     @property
+    def execution_jitter(self) -> dict[str, float]:
+        """A real arm's push runs U(1 +- push_time_jitter) times as fast as planned."""
+        return {"push": float(self.spec.push_time_jitter)} if self.spec.push_time_jitter else {}
+
+    @property
     def workspace(self) -> Workspace:
         """The motion planner's bounds: room above a tower of every block at the largest
         prior size plus a held block and the palm (the loop's default stops at 0.6 m)."""
@@ -105,21 +111,6 @@ class StackAndPushDomain:
             d = values["density"]
             props["density"] = float(d[0]) if np.all(d == d[0]) else d
         return props
-
-    # What a task or session request may set over HTTP (api.schemas builds the domain's
-    # request model from these): each option valid on its own, whatever the others say.
-    http_options = {
-        "unknown_density": {"type": bool, "description": "L = (size, density): learn the blocks' "
-                                                         "density from the wrist force"},
-        "force_sigma": {"type": float, "ge": MIN_FORCE_SIGMA, "le": 100.0,
-                        "description": "noise of the held-weight channel (N; 0.1 an external F/T "
-                                       "sensor, 3.5 a UR5e's built-in one)"},
-        "force_from_mass": {"type": bool, "description": "size the grip force and the push's force "
-                                                         "limit from the believed mass (default: "
-                                                         "when the density is unknown)"},
-    }
-    http_truth = {"density": {"type": float, "gt": MIN_DENSITY, "le": MAX_DENSITY,
-                              "description": "the blocks' density (kg/m^3)"}}
 
     # -- physics ---------------------------------------------------------------------
     def build(self, client: int, props: dict) -> scene.SceneHandles:

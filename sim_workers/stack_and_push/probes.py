@@ -13,7 +13,7 @@ import numpy as np
 
 from ..configuration import Configuration, quat_from_yaw
 from ..grounded_world import GroundedWorld, act
-from ..reality_gap import PLACEMENT_JITTER_M, YAW_JITTER_RAD, executed, jitter_planar, push_time_jitter
+from ..reality_gap import PLACEMENT_JITTER_M, YAW_JITTER_RAD, action_jitter, executed, jitter_planar
 
 PROBE_ACTIONS = ("pickup", "stack", "push", "stand", "built_stack", "built_push")
 STAND_S = 2.0            # how long a tower is left alone in the `stand` probe
@@ -32,9 +32,8 @@ def real_push(world: GroundedWorld, domain, config: Configuration, believed: dic
               rng: np.random.Generator):
     """The tower pushed to the goal through Y at the believed properties, its timing as a
     real arm runs it (``reality_gap.executed``: the simulated reality's per-push jitter)."""
-    jitter = push_time_jitter(domain)
     return act(world, domain, config, believed, "push(r,tower,start,goal)",
-               run_as=lambda traj, action: executed(traj, action, rng, jitter))
+               run_as=lambda traj, action: executed(traj, action, rng, action_jitter(domain, action)))
 
 
 def tower_configuration(domain, sizes: np.ndarray, load_k: int, rng: np.random.Generator) -> Configuration:

@@ -10,6 +10,7 @@ import pytest
 from coordinator import domains
 from coordinator.cli import main
 from coordinator.conformance import CHECKS, check_domain
+from sim_workers.base import PhysicsDomain
 from coordinator.transition_model import TransitionModel
 from planner.domain import UnknownAction
 from sim_workers import domains as physics_registry
@@ -79,7 +80,8 @@ class _Drifting(ContainerDomain):
 def test_check_domain_names_the_failed_check_and_exits_1(capsys, monkeypatch):
     physics_registry.register("broken_drift", _Drifting)
     monkeypatch.setitem(domains.BUILTIN, "broken_drift", domains.DomainSpec(
-        "broken_drift", "tests:unused", "planner.container:ContainerTask", "a broken domain"))
+        "broken_drift", f"{_Drifting.__module__}:_Drifting", "planner.container:ContainerTask",
+        "a broken domain"))
     try:
         assert main(["check-domain", "broken_drift", "--no-ray"]) == 1
         out = capsys.readouterr().out
@@ -88,6 +90,82 @@ def test_check_domain_names_the_failed_check_and_exits_1(capsys, monkeypatch):
         assert main(["check-domain", "nope"]) == 2
     finally:
         physics_registry._REGISTRY.pop("broken_drift", None)
+
+
+class _Incomplete:
+    """A physics half written against no base class, missing most of the protocol."""
+
+    name = "incomplete"
+
+    def __init__(self, **options):
+        self.spec = None
+
+    def build(self, client, props):
+        return None
+
+
+class _HalfDone(PhysicsDomain):
+    """A subclass that leaves two abstract members out."""
+
+    name = "half_done"
+
+    def __init__(self, **options):
+        self.spec = ContainerDomain().spec
+
+    for _m in sorted(set(PhysicsDomain.__abstractmethods__) - {"measurements", "obstacles", "object_names"}):
+        locals()[_m] = getattr(ContainerDomain, _m)
+    object_names = ContainerDomain.object_names
+    del _m
+
+
+def test_check_domain_names_every_missing_member_first(capsys, monkeypatch):
+    """The structural check runs first and names every member a half lacks, at once; a
+    half that is not a subclass of the base says so (issue 26)."""
+    for name, cls in (("incomplete", _Incomplete), ("half_done", _HalfDone)):
+        monkeypatch.setitem(domains.BUILTIN, name, domains.DomainSpec(
+            name, f"{cls.__module__}:{cls.__name__}", "planner.container:ContainerTask", "broken"))
+    assert main(["check-domain", "half_done", "--no-ray"]) == 1
+    out = capsys.readouterr().out
+    assert "FAIL structure" in out and "lacks measurements, obstacles" in out
+    assert "1 checks" in out or "0/1" in out          # nothing is built from an incomplete protocol
+    results = check_domain("incomplete", ray_actors=False)
+    assert [r.name for r in results] == ["structure"] and not results[0].ok
+    detail = results[0].detail
+    assert "(a subclass of PhysicsDomain)" in detail
+    for member in ("action_pose", "measurements", "symbolic_state", "true_properties", "object_names"):
+        assert member in detail
+    assert ", build" not in detail                  # it has build
+    with pytest.raises(ValueError, match="does not implement sim_workers.base.PhysicsDomain"):
+        domains.load("incomplete")
+
+
+def test_the_protocol_lists_required_and_optional_members():
+    """The base classes are the protocol: what a domain must write and what has a default."""
+    from planner.domain import TaskDomain
+    from sim_workers.base import optional_members, required_members
+
+    assert {"name", "build", "symbolic_state", "action_pose", "measurements"} <= set(required_members())
+    assert {"props_from_row", "action_poses", "pose_classes", "workspace", "senses", "L",
+            "measurement_channels", "probe_loads", "execution_jitter"} <= set(optional_members())
+    assert {"name", "plan", "context_of", "contexts"} <= set(required_members(TaskDomain))
+    assert {"http_options", "http_truth", "actions_for_loads"} <= set(optional_members(TaskDomain))
+    for name in domains.names():
+        d = domains.load(name)
+        assert isinstance(d.physics, PhysicsDomain) and isinstance(d.task, TaskDomain)
+
+
+def test_http_bounds_of_the_task_halves_are_the_physics_bounds():
+    """The request bounds a task half declares (planner cannot import sim_workers) are the
+    physics half's: a density just inside builds, just outside is refused."""
+    from planner.domain import DENSITY_BOUNDS
+    from sim_workers.properties import MAX_DENSITY, MIN_DENSITY
+
+    assert (DENSITY_BOUNDS["gt"], DENSITY_BOUNDS["le"]) == (MIN_DENSITY, MAX_DENSITY)
+    for name in domains.names():
+        for key, decl in domains.task_half(name).http_options.items():
+            for bound in ("ge", "le"):
+                if bound in decl:
+                    domains.load(name, **{key: decl[bound]})
 
 
 def test_a_second_domain_with_the_same_action_names_learns_its_own_contexts():

@@ -8,7 +8,7 @@ import pytest
 
 from sim_workers.domains import load
 from sim_workers.probe import probe
-from sim_workers.reality_gap import executed, push_time_jitter
+from sim_workers.reality_gap import action_jitter, executed
 
 
 def _traj(columns: int = 6) -> np.ndarray:
@@ -30,15 +30,18 @@ def test_executed_leaves_other_actions_and_zero_jitter_alone_without_a_draw():
     rng = np.random.default_rng(1)
     before = rng.bit_generator.state
     traj = _traj()
-    assert executed(traj, "stack(r,b1,tower)", rng, 0.3) is traj
+    sp = load("stack_and_push")
+    assert executed(traj, "stack(r,b1,tower)", rng, action_jitter(sp, "stack(r,b1,tower)")) is traj
     assert executed(traj, "push(r,c,init,goal)", rng, 0.0) is traj
     assert rng.bit_generator.state == before                    # the random stream untouched
 
 
 def test_the_jitter_is_the_domain_s():
-    assert push_time_jitter(load("stack_and_push")) == pytest.approx(0.3)
-    assert push_time_jitter(load("container")) == 0.0           # its spec has none
-    assert push_time_jitter(load("stack_and_push", push_time_jitter=0.0)) == 0.0
+    push = "push(r,tower,start,goal)"
+    assert action_jitter(load("stack_and_push"), push) == pytest.approx(0.3)
+    assert action_jitter(load("stack_and_push"), "pickup(r,b1,init)") == 0.0   # pushes only
+    assert load("container").execution_jitter == {}                             # none declared
+    assert action_jitter(load("stack_and_push", push_time_jitter=0.0), push) == 0.0
 
 
 @pytest.mark.slow

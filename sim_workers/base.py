@@ -1,0 +1,242 @@
+"""The physics half of a domain, as a base class: the protocol the worlds, the shards and
+the coordinator speak (dm_control's ``Physics``/``Task`` split, Gymnasium's ``Env``).
+
+A domain subclasses ``PhysicsDomain``, sets ``name`` and ``spec`` and implements the
+abstract members; every other member has a default here, so the service calls each one
+directly and never probes a domain with ``getattr``. ``required_members()`` lists the
+abstract ones, and ``missing_members(cls)`` is the structural check ``tmoc
+check-domain`` runs first (it names every missing member at once, before anything is
+built).
+
+``spec`` is the domain's options: a dataclass whose scalar fields are what ``--option``,
+``options`` over HTTP and ``tmoc domains`` show. The defaults below read four of its
+fields: ``n_blocks`` (the object count), ``true_size``, ``prior_low`` and ``prior_high``
+(the default L: one size for every object), ``base_max_force`` (the palm's force limit
+when a trajectory sets none) and ``settle_s`` (how long a world settles after a
+trajectory); a domain overrides the member instead where its spec has no such field.
+"""
+from __future__ import annotations
+
+import abc
+import inspect
+from typing import Any, ClassVar
+
+import numpy as np
+
+from .configuration import Configuration, Workspace
+from .properties import PropertySpace
+
+# The motion planner's bounds (x, y, z, yaw) when a domain declares none.
+DEFAULT_WORKSPACE = Workspace(np.array([-0.5, -0.6, 0.0, -np.pi]), np.array([1.2, 0.6, 0.6, np.pi]))
+
+
+class PhysicsDomain(abc.ABC):
+    """Scene, Y, Y^-1, measurements and the prior over L of one domain (no planning here)."""
+
+    name: ClassVar[str]
+    spec: Any                                   # the options: a dataclass, see the module doc
+    max_blocks: ClassVar[int] = 16              # the object count's upper limit
+    # Action kinds whose particle worlds leave out the bodies they cannot reach
+    # (sim_workers/reach.py): only where measured to keep the outcomes.
+    leave_out_actions: ClassVar[tuple[str, ...]] = ()
+    # Whether the world records a sensor log (wrist force, opening) during an action; a
+    # domain that reads none pays nothing.
+    logs_sensors: ClassVar[bool] = False
+    probe_actions: ClassVar[tuple[str, ...]] = ()   # what `tmoc probe` can try in this domain
+
+    # -- the objects and their unknown properties L -------------------------------------
+    @property
+    @abc.abstractmethod
+    def object_names(self) -> list[str]:
+        """Every movable object's name, in the order of ``Configuration.objects``."""
+
+    @property
+    def block_names(self) -> list[str]:
+        """The objects that carry their own row of L with per-object unknowns (default:
+        every object)."""
+        return list(self.object_names)
+
+    @property
+    def n_blocks(self) -> int:
+        """How many objects with unknown properties the scene holds."""
+        return int(self.spec.n_blocks)
+
+    @property
+    def L(self) -> PropertySpace:
+        """The unknown properties (names, units, prior, default truth); default: one size."""
+        sp = self.spec
+        return PropertySpace(("size",), ("m",), (float(sp.prior_low),), (float(sp.prior_high),),
+                             (float(sp.true_size),))
+
+    @abc.abstractmethod
+    def true_properties(self, sizes_variation: bool = False) -> dict:
+        """The hidden truth as properties (``sizes_variation``: objects of unequal size)."""
+
+    @abc.abstractmethod
+    def properties(self, props: dict) -> dict:
+        """`props` validated and completed (PropertyError naming the field); idempotent."""
+
+    def props_from_row(self, row: np.ndarray) -> dict:
+        """A row of L (what the wire carries) as the properties a world is built from;
+        default: one size for every object."""
+        return {"block_sizes": np.broadcast_to(np.asarray(row, dtype=np.float64), (self.n_blocks,))}
+
+    # -- the scene --------------------------------------------------------------------
+    @abc.abstractmethod
+    def build(self, client: int, props: dict) -> Any:
+        """Build the scene in engine client `client`; the handles the world drives."""
+
+    @property
+    def base_max_force(self) -> float:
+        """The palm's force limit (N) when a trajectory sets none (``spec.base_max_force``)."""
+        return float(self.spec.base_max_force)
+
+    @property
+    def settle_s(self) -> float:
+        """How long (s) the world may settle after a trajectory before it is observed
+        (``spec.settle_s``; it stops earlier at rest)."""
+        return float(self.spec.settle_s)
+
+    @property
+    def execution_jitter(self) -> dict[str, float]:
+        """The simulated reality's relative timing jitter per action kind: a real arm runs
+        that kind U(1 +- jitter) times faster or slower than commanded (default: none)."""
+        return {}
+
+    @abc.abstractmethod
+    def initial_configuration(self, props: dict) -> Configuration:
+        """Where everything starts, for objects of these properties."""
+
+    @abc.abstractmethod
+    def place(self, config: Configuration, props: dict) -> Configuration:
+        """`config` made consistent with these properties (a particle's own sizes)."""
+
+    def after_action(self, config: Configuration, action: str) -> Configuration:
+        """What happens after `action` outside the robot (default: nothing; return `config`
+        itself so that the world knows nothing moved)."""
+        return config
+
+    # -- Y^-1 and Y ----------------------------------------------------------------------
+    @abc.abstractmethod
+    def symbolic_state(self, config: Configuration) -> frozenset[str]:
+        """Y^-1: the symbolic state of a configuration."""
+
+    @abc.abstractmethod
+    def action_pose(self, props: dict, config: Configuration, action: str) -> np.ndarray:
+        """Y: the action's key pose for objects of these properties."""
+
+    def action_poses(self, rows: np.ndarray, config: Configuration, action: str) -> np.ndarray:
+        """Y for every row of L ((N, D) -> (N, ...)); default: one ``action_pose`` per row."""
+        return np.array([self.action_pose(self.props_from_row(row), config, action)
+                         for row in np.asarray(rows, dtype=np.float64)])
+
+    def pose_classes(self, rows: np.ndarray, config: Configuration, action: str) -> np.ndarray:
+        """The discrete choice Y makes for each row of L ((N, D) -> (N,) ints), so that the
+        coordinator averages a pose within one class only; default: one class."""
+        return np.zeros(len(rows), dtype=np.int64)
+
+    @abc.abstractmethod
+    def check_action(self, action: str) -> None:
+        """ValueError naming what is wrong if `action` is not one this scene can execute."""
+
+    # -- motion ----------------------------------------------------------------------------
+    @abc.abstractmethod
+    def pre_pose(self, config: Configuration, action: str, key: np.ndarray) -> np.ndarray:
+        """Where the robot goes before the action's own motion (its transit's goal)."""
+
+    @abc.abstractmethod
+    def action_trajectory(self, config: Configuration, action: str, key: np.ndarray,
+                          transit: np.ndarray | None = None) -> np.ndarray:
+        """The commanded trajectory (time, target per row), after `transit` if given."""
+
+    @abc.abstractmethod
+    def transit_end_time(self, config: Configuration, action: str, key: np.ndarray,
+                         transit: np.ndarray | None = None) -> float:
+        """When the trajectory reaches the pre-pose (the particle worlds start there)."""
+
+    @abc.abstractmethod
+    def default_transit(self, start: np.ndarray, pre: np.ndarray) -> np.ndarray:
+        """The unchecked path used when the motion planner finds none: (M, 5) waypoints."""
+
+    def transit_candidates(self, robot: np.ndarray, pre: np.ndarray) -> list[tuple[str, np.ndarray]]:
+        """Paths the motion planner tries before RRT*: (name, (M, >=4) waypoints) each."""
+        return [("up_across_down", self.default_transit(robot, pre))]
+
+    @abc.abstractmethod
+    def obstacles(self, config: Configuration, size) -> list:
+        """Boxes (centre, half extents[, rotation]) the transit must avoid, for believed
+        sizes `size` (one for all, or one per object)."""
+
+    @abc.abstractmethod
+    def gripper_boxes(self, held_size: float = 0.0, opening: float | None = None) -> list:
+        """(half extents, z offset above the fingertips) of the gripper's boxes."""
+
+    @property
+    def workspace(self) -> Workspace:
+        """The motion planner's bounds."""
+        return DEFAULT_WORKSPACE
+
+    # -- measurements --------------------------------------------------------------------
+    def senses(self, action: str) -> bool:
+        """Whether `action` records the sensor log its measurements read (default:
+        ``logs_sensors`` for every action)."""
+        return self.logs_sensors
+
+    @abc.abstractmethod
+    def measurements(self, config: Configuration, log: Any = None, action: str = "") -> np.ndarray:
+        """The measurement vector after `action` in `config` (`log`: the action's sensor
+        log when ``senses(action)``, else None)."""
+
+    @abc.abstractmethod
+    def measurement_model(self) -> tuple[np.ndarray, np.ndarray]:
+        """(indices, std) of the measurements the belief's likelihood weighs."""
+
+    def measurement_channels(self) -> list[dict]:
+        """Every channel: name, index, unit and sigma (None: reported, not weighed);
+        default: the weighed ones, named ``channel_<i>``."""
+        idx, sigma = self.measurement_model()
+        return [{"name": f"channel_{int(i)}", "index": int(i), "unit": "", "sigma": float(s)}
+                for i, s in zip(idx, sigma)]
+
+    # -- probes (`tmoc probe`, T*) --------------------------------------------------------
+    def probe_trial(self, action: str, true_size: float, believed_size: float, load_k: int,
+                    rng: np.random.Generator, **kwargs) -> bool:
+        """One seeded trial of `action` in this world: whether it had its intended effect."""
+        raise NotImplementedError(f"domain {self.name!r} has no probe trials")
+
+    def probe_loads(self, action: str) -> range:
+        """The loads a probe of `action` accepts (default 1..n_blocks)."""
+        return range(1, self.n_blocks + 1)
+
+    def t_star_probe_jobs(self, n_blocks: int) -> list[tuple[str, int]]:
+        """(action, load) of every probe the T* estimate needs."""
+        raise NotImplementedError(f"domain {self.name!r} has no T* probes")
+
+    def t_star_from_probes(self, successes: dict, trials: int, n_blocks: int) -> dict:
+        """T* in the planner's form from the probes' success counts."""
+        raise NotImplementedError(f"domain {self.name!r} has no T* probes")
+
+
+def required_members(base: type = PhysicsDomain) -> list[str]:
+    """The members a domain must define: the base's declared class attributes without a
+    default (such as ``name``), then its abstract methods and properties. (``spec`` is set
+    per instance by ``__init__`` and checked once the domain is built.)"""
+    declared = [n for n in base.__dict__.get("__annotations__", {}) if n != "spec" and not hasattr(base, n)]
+    return declared + sorted(base.__abstractmethods__)
+
+
+def optional_members(base: type = PhysicsDomain) -> list[str]:
+    """The members `base` gives a default for (a domain overrides them where it needs to)."""
+    required = set(required_members(base)) | {"spec"}
+    return sorted(n for n in base.__dict__ if not n.startswith("_") and n not in required)
+
+
+def missing_members(cls: type, base: type = PhysicsDomain) -> list[str]:
+    """What class `cls` lacks of the protocol `base`, every member by name (empty:
+    structurally complete); a class that does not subclass `base` says so first."""
+    missing = [] if isinstance(cls, type) and issubclass(cls, base) else [f"(a subclass of {base.__name__})"]
+    for member in required_members(base):
+        attr = inspect.getattr_static(cls, member, None) if isinstance(cls, type) else None
+        if attr is None or getattr(attr, "__isabstractmethod__", False):
+            missing.append(member)
+    return missing
