@@ -1,7 +1,7 @@
 """Task-planner latency: clingo incremental #minimize for 8 and 16 blocks under several T.
 
 Each setting plans from the initial state (all blocks at init) with the default costs and
-times the whole `planner.task_planner.plan` call (validation, grounding, every solve of the
+times the whole `planner.container.planner.plan` call (validation, grounding, every solve of the
 incremental horizon loop, naming and re-scoring the plan). T settings:
 
     optimistic   every action succeeds (one trip with all blocks)
@@ -36,8 +36,8 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from planner import stack_and_push  # noqa: E402
-from planner import symbolic  # noqa: E402
-from planner import task_planner  # noqa: E402
+from planner.container import symbolic  # noqa: E402
+from planner.container import planner as task_planner  # noqa: E402
 
 MAX_BLOCKS = {"container": 16, "stack_and_push": 8}
 

@@ -1,4 +1,4 @@
-"""The domain registry of the service: a domain's two halves, joined by name.
+"""A domain's two halves, joined by name (the registry itself is ``sim_workers.domains``).
 
 A domain is a physics half (``sim_workers``: scene, Y, Y^-1, measurements, the prior over
 L; what Ray shards import) and a task half (``planner``: symbolic model, T's contexts,
@@ -13,7 +13,8 @@ that joins them. Like Gymnasium's registry, entries are strings imported on use:
 
 Built-in domains are listed in ``BUILTIN``; other installed packages add theirs through
 the ``tmoc.domains`` entry-point group (see docs/DOMAINS.md): the entry point names a
-mapping ``{"physics": "pkg.physics:Cls", "task": "pkg.task:Cls", "description": "..."}``.
+mapping ``{"physics": "pkg.physics:Cls", "task": "pkg.task:Cls", "description": "...",
+"version": 1}``.
 """
 from __future__ import annotations
 
@@ -27,56 +28,15 @@ from sim_workers import domains as physics_registry
 from sim_workers.base import missing_members
 from sim_workers.properties import PropertySpace
 
-
-@dataclass(frozen=True)
-class DomainSpec:
-    """Where a domain's halves live (``module:attribute`` strings)."""
-
-    name: str
-    physics: str
-    task: str
-    description: str = ""
-    source: str = "builtin"         # or "plugin (<distribution>)"
-
-
-# Imported on use, like every entry: a built-in whose half fails to import is an error
-# when it is loaded, never left out of the registry (which made the tests parametrised
-# over domains shrink and pass; issue 26).
-BUILTIN: dict[str, DomainSpec] = {
-    "container": DomainSpec(
-        "container", physics_registry.BUILTIN["container"], "planner.container:ContainerTask",
-        "the paper's simulation task: blocks carried to a goal in an open container "
-        "(heavier loads topple more often)"),
-    "stack_and_push": DomainSpec(
-        "stack_and_push", physics_registry.BUILTIN["stack_and_push"],
-        "planner.stack_and_push:StackAndPushTask",
-        "the paper's real-robot task: blocks stacked into a tower on a rail and pushed to a goal "
-        "area (taller towers topple more often)"),
-}
-
-
-def specs() -> dict[str, DomainSpec]:
-    """Every registered domain: the built-ins, then installed plugins (built-ins win)."""
-    out = dict(BUILTIN)
-    for name, entry in physics_registry.plugin_entries().items():
-        if name not in out:
-            dist = entry.get("distribution")
-            out[name] = DomainSpec(name, str(entry["physics"]), str(entry["task"]),
-                                   str(entry.get("description", "")),
-                                   f"plugin ({dist})" if dist else "plugin")
-    return out
+# The one registry (sim_workers.domains): the same table, read by shards and coordinator.
+DomainSpec = physics_registry.DomainSpec
+BUILTIN = physics_registry.BUILTIN
+specs = physics_registry.specs
+spec = physics_registry.spec
 
 
 def names() -> list[str]:
     return sorted(specs())
-
-
-def spec(name: str) -> DomainSpec:
-    """The spec of a registered domain; ValueError naming `domain` otherwise."""
-    known = specs()
-    if name not in known:
-        raise ValueError(f"domain: unknown domain {name!r} (known: {', '.join(sorted(known))})")
-    return known[name]
 
 
 @dataclass
@@ -102,6 +62,7 @@ _TASKS: dict[str, Any] = {}
 
 def task_half(name: str):
     """The task half of a domain (one instance per process: it holds no state)."""
+    name = spec(name).name
     if name not in _TASKS:
         factory = physics_registry.import_string(spec(name).task)
         task = factory() if isinstance(factory, type) else factory
@@ -113,12 +74,10 @@ def task_half(name: str):
 
 
 def load(name: str, **options) -> Domain:
-    """Both halves of `name`; `options` go to the physics half (e.g. n_blocks=8)."""
+    """Both halves of `name` (or ``name-vN``); `options` go to the physics half (e.g. n_blocks=8)."""
     s = spec(name)
-    if not physics_registry.is_registered(name):
-        physics_registry.register(name, physics_registry.import_string(s.physics))
-    physics = physics_registry.load(name, **options)
-    return Domain(s, physics, task_half(name), dict(options))
+    physics = physics_registry.load(s.name, **options)
+    return Domain(s, physics, task_half(s.name), dict(options))
 
 
 def describe(name: str, **options) -> dict:
@@ -132,6 +91,8 @@ def describe(name: str, **options) -> dict:
     channels = measurement_channels(phys)
     return {
         "name": d.name,
+        "version": d.spec.version,
+        "id": d.spec.id,
         "description": d.spec.description,
         "source": d.spec.source,
         "physics": d.spec.physics,

@@ -6,23 +6,27 @@ from typing import Annotated, Literal
 import numpy as np
 from pydantic import AfterValidator, BaseModel, ConfigDict, Field, model_validator
 
-from planner.task_model import DEFAULT_COSTS
+from planner.blocks.model import DEFAULT_COSTS
 
 from .agents import AGENTS
 
 # One place for each fact: the agent names are the registry's (coordinator.agents), the
-# default utility terms the task model's (planner.task_model.DEFAULT_COSTS).
+# default utility terms the task model's (planner.blocks.model.DEFAULT_COSTS).
 AgentName = Literal[tuple(AGENTS)]  # type: ignore[valid-type]
 
 
 def _registered_domain(name: str) -> str:
-    """A domain name the registry knows (built-in or installed plugin)."""
+    """A domain the registry knows (built-in or installed plugin), by its name: ``name-vN``
+    is accepted when N is the installed version."""
     from coordinator.domains import names
+    from sim_workers.domains import canonical_name
 
-    known = names()
-    if name not in known:
-        raise ValueError(f"unknown domain {name!r} (known: {', '.join(known)})")
-    return name
+    try:
+        return canonical_name(name)
+    except ValueError as exc:
+        if "is not installed" in str(exc):
+            raise ValueError(str(exc).removeprefix("domain: ")) from None
+        raise ValueError(f"unknown domain {name!r} (known: {', '.join(names())})") from None
 
 
 DomainName = Annotated[str, AfterValidator(_registered_domain)]

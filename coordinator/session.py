@@ -19,7 +19,7 @@ from typing import Callable, Iterator
 
 import numpy as np
 
-from planner.task_model import PlanningError
+from planner.blocks.model import PlanningError
 from planner.terms import parse_term
 from sim_workers.configuration import Configuration
 from sim_workers.properties import SIZES_VARIATION_SCALE
@@ -27,7 +27,7 @@ from sim_workers.trajectory import columns_of
 
 from .agents import agent_spec
 from .belief import Belief, heaviest_class, mode_mask, symbolic_log_likelihood
-from .domains import load as load_domain, property_space
+from .domains import load as load_domain, property_space, spec as domain_spec
 from .episode import EpisodeStats, utility_terms
 from .experience import ExperiencePool
 from .particle_budget import next_count
@@ -463,6 +463,7 @@ class Session:
             raise RuntimeError("checkpoint: only at an episode boundary")
         return {
             "version": 1,
+            "domain_version": domain_spec(self.config.domain).version,
             "config": self.config.model_dump(),
             "belief": self.belief.to_dict() if self.belief is not None else None,
             "reweighting": self.reweighting.to_dict(),
@@ -476,7 +477,12 @@ class Session:
 
     @classmethod
     def from_checkpoint(cls, data: dict, shard_pool=None) -> "Session":
-        session = cls(stored_run_config(data["config"]), shard_pool)
+        config = stored_run_config(data["config"])
+        stored, installed = int(data.get("domain_version", 1)), domain_spec(config.domain)     # absent: version 1
+        if stored != installed.version:
+            raise ValueError(f"checkpoint: made with {config.domain}-v{stored}; the installed domain is "
+                             f"{installed.id}, whose scene or contexts differ: start a new run")
+        session = cls(config, shard_pool)
         if data["belief"] is not None:
             session.belief = Belief.from_dict(data["belief"])
         session.reweighting.load(data.get("reweighting"), session.dims)     # absent before issue 24

@@ -1,40 +1,75 @@
-"""Domain registry (the physics half): a domain is data plus a few functions, by name.
+"""The domain registry: one table of versioned domain specs, by name (Gymnasium's registry).
 
-``load("container", n_blocks=8)`` returns a domain object; a second domain is a line in
-``BUILTIN`` (or a ``register`` call), not a rewrite of the world or the shards. Like
-Gymnasium's registry, the built-ins are ``"module:Class"`` strings imported on first use:
-this module imports no domain, so no domain imports it back to register itself. Domains from
-other installed packages are found through the ``tmoc.domains`` entry-point group: each
-entry point names a mapping ``{"physics": "module:Class", "task": "module:Class", ...}``
-(Gymnasium-style strings, imported only when the domain is used, so a Ray actor imports
-just the physics half).
+A ``DomainSpec`` names a domain's two halves as ``"module:Class"`` strings, imported on
+first use: the physics half (``sim_workers.base.PhysicsDomain``: scene, Y, Y^-1,
+measurements, the prior over L; all a Ray shard imports) and the task half
+(``planner.domain.TaskDomain``: symbolic model, T's contexts, utility, the planner; the
+coordinator joins them in ``coordinator.domains``). The table lives in this leaf module so
+that shards and coordinator read the same one, and nothing here imports a domain.
+
+Built-in domains are ``BUILTIN``; other installed packages add theirs through the
+``tmoc.domains`` entry-point group: each entry point names a mapping ``{"physics":
+"module:Class", "task": "module:Class", "description": ..., "version": N}``. A built-in
+whose half fails to import is an error when it is used, never left out of the table.
+
+``version`` (default 1) changes when a domain's scene, Y or T's contexts change in a way
+that makes stored learning invalid: it enters checkpoints and the T* cache keys, and a
+checkpoint or cache that has none is read as version 1. ``"name-vN"`` names version N
+of a domain (an error if the installed one is another).
 """
 from __future__ import annotations
 
 import importlib
+import re
+from dataclasses import dataclass
 from importlib import metadata
 from typing import Any, Callable, Mapping
 
 from .base import PhysicsDomain, missing_members
 
-
-# What the grounded world, the shards and the coordinator need from a domain: the base
-# class is the protocol (sim_workers/base.py).
+# What the grounded world, the shards and the coordinator need from a domain's physics:
+# the base class is the protocol (sim_workers/base.py).
 Domain = PhysicsDomain
 
+ENTRY_POINT_GROUP = "tmoc.domains"
+_VERSIONED = re.compile(r"^(?P<name>.+)-v(?P<version>\d+)$")
 
-# The physics halves shipped with the service (coordinator.domains joins them to their
-# task halves). Imported lazily by `load`.
-BUILTIN: dict[str, str] = {
-    "container": "sim_workers.container:ContainerDomain",
-    "stack_and_push": "sim_workers.stack_and_push:StackAndPushDomain",
+
+@dataclass(frozen=True)
+class DomainSpec:
+    """One registered domain: where its halves live (``module:attribute`` strings)."""
+
+    name: str
+    physics: str
+    task: str
+    description: str = ""
+    source: str = "builtin"         # or "plugin (<distribution>)"
+    version: int = 1
+
+    @property
+    def id(self) -> str:
+        """The versioned id, ``name-vN``."""
+        return f"{self.name}-v{self.version}"
+
+
+BUILTIN: dict[str, DomainSpec] = {
+    "container": DomainSpec(
+        "container", "sim_workers.container:ContainerDomain", "planner.container:ContainerTask",
+        "the paper's simulation task: blocks carried to a goal in an open container "
+        "(heavier loads topple more often)"),
+    "stack_and_push": DomainSpec(
+        "stack_and_push", "sim_workers.stack_and_push:StackAndPushDomain",
+        "planner.stack_and_push:StackAndPushTask",
+        "the paper's real-robot task: blocks stacked into a tower on a rail and pushed to a goal "
+        "area (taller towers topple more often)"),
 }
 
-_REGISTRY: dict[str, Callable[..., Domain]] = {}
-ENTRY_POINT_GROUP = "tmoc.domains"
+# Physics factories registered in-process (tests, notebooks): they take precedence over a
+# spec's `physics` string of the same name.
+_REGISTRY: dict[str, Callable[..., PhysicsDomain]] = {}
 
 
-def register(name: str, factory: Callable[..., Domain]) -> None:
+def register(name: str, factory: Callable[..., PhysicsDomain]) -> None:
     _REGISTRY[name] = factory
 
 
@@ -66,30 +101,71 @@ def plugin_entries() -> dict[str, Mapping]:
     return found
 
 
-def is_registered(name: str) -> bool:
-    return name in _REGISTRY or name in BUILTIN
+def specs() -> dict[str, DomainSpec]:
+    """Every registered domain: the built-ins, then installed plugins (built-ins win)."""
+    out = dict(BUILTIN)
+    for name, entry in plugin_entries().items():
+        if name not in out:
+            dist = entry.get("distribution")
+            out[name] = DomainSpec(name, str(entry["physics"]), str(entry["task"]),
+                                   str(entry.get("description", "")),
+                                   f"plugin ({dist})" if dist else "plugin",
+                                   _version(entry.get("version", 1), name))
+    return out
+
+
+def _version(value: Any, name: str) -> int:
+    if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+        raise ValueError(f"domain {name!r}: version {value!r} is not a positive integer")
+    return value
 
 
 def names() -> list[str]:
-    return sorted(set(_REGISTRY) | set(BUILTIN) | set(plugin_entries()))
+    return sorted(set(specs()) | set(_REGISTRY))
 
 
-def load(name: str, **options) -> Domain:
-    """The domain registered as `name`, built with `options` (e.g. n_blocks=8)."""
-    if name not in _REGISTRY:
-        if name in BUILTIN:
-            register(name, import_string(BUILTIN[name]))
-        else:
-            plugins = plugin_entries()
-            if name not in plugins:
-                known = sorted(set(_REGISTRY) | set(BUILTIN) | set(plugins))
-                raise ValueError(f"domain: unknown domain {name!r} (known: {', '.join(known)})")
-            register(name, import_string(plugins[name]["physics"]))
-    domain = _REGISTRY[name](**options)
+def spec(name: str) -> DomainSpec:
+    """The spec of a registered domain (``name`` or ``name-vN``); ValueError naming
+    ``domain`` otherwise."""
+    if name in BUILTIN:             # (no scan of the installed packages on the hot path)
+        return BUILTIN[name]
+    known = specs()
+    if name not in known:
+        m = _VERSIONED.match(str(name))
+        if m and m["name"] in known:
+            found = known[m["name"]]
+            if found.version != int(m["version"]):
+                raise ValueError(f"domain: {name!r} is not installed ({m['name']} is version "
+                                 f"{found.version}: {found.id})")
+            return found
+        if name in _REGISTRY:
+            return DomainSpec(name, f"<registered {name}>", "", source="registered")
+        raise ValueError(f"domain: unknown domain {name!r} (known: {', '.join(sorted(known))})")
+    return known[name]
+
+
+def canonical_name(name: str) -> str:
+    """The registry's name for ``name`` or ``name-vN`` (ValueError if unknown)."""
+    return spec(name).name
+
+
+def is_registered(name: str) -> bool:
+    try:
+        spec(name)
+    except ValueError:
+        return False
+    return True
+
+
+def load(name: str, **options) -> PhysicsDomain:
+    """The physics half of domain `name`, built with `options` (e.g. n_blocks=8)."""
+    s = spec(name)
+    factory = _REGISTRY.get(s.name) or import_string(s.physics)
+    domain = factory(**options)
     if not isinstance(domain, PhysicsDomain):
         # The service calls every member of the protocol directly: a half built some
         # other way fails here, by name, not deep inside a Ray actor.
         missing = ", ".join(missing_members(type(domain)))
-        raise ValueError(f"domain {name!r}: its physics half {type(domain).__name__} does not "
+        raise ValueError(f"domain {s.name!r}: its physics half {type(domain).__name__} does not "
                          f"implement sim_workers.base.PhysicsDomain (missing: {missing})")
     return domain

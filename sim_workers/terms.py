@@ -1,30 +1,3 @@
-"""Action terms as the physics half reads them (Y and Y^-1 of every built-in domain).
-
-The twin of ``planner.terms`` for the same text (``"stack(r,b2,c)"``): the layering keeps
-sim_workers a leaf that never imports planner (a Ray shard imports the physics half only),
-so this half parses on its own, once. Errors are ValueErrors prefixed ``action:``.
-
->>> parse_action("push(r, c, init, goal)")
-('push', ['r', 'c', 'init', 'goal'])
-"""
-from __future__ import annotations
-
-import re
-
-_ACTION = re.compile(r"^(pickup|stack|push)\(([^()]*)\)$")
-_BLOCK = re.compile(r"b\d+")
-
-
-def parse_action(action: str) -> tuple[str, list[str]]:
-    """``"name(a,b)"`` (spaces ignored) of pickup, stack or push -> ``(name, [a, b])``."""
-    m = _ACTION.match(action.replace(" ", ""))
-    if not m:
-        raise ValueError(f"action: cannot parse {action!r}")
-    return m.group(1), m.group(2).split(",")
-
-
-def block_index(spec, name: str) -> int:
-    """Row of block ``bK`` among the blocks (K - 1); ValueError unless 1 <= K <= spec.n_blocks."""
-    if not _BLOCK.fullmatch(name) or not 1 <= int(name[1:]) <= spec.n_blocks:
-        raise ValueError(f"action: unknown block {name!r}")
-    return int(name[1:]) - 1
+"""Kept for imports from before issue 26: the block worlds' action terms are
+``sim_workers.blocks.terms``."""
+from .blocks.terms import block_index, parse_action  # noqa: F401

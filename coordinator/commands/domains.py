@@ -34,7 +34,7 @@ def main(args) -> int:
                           for p in d["properties"])
         weighed = ", ".join(f"{c['name']} (sigma {c['sigma']:g} {c['unit']})"
                             for c in d["measurements"]["weighed"])
-        print(f"{name}  ({d['source']})  {d['description']}")
+        print(f"{name}  ({d['id']}, {d['source']})  {d['description']}")
         print(f"  objects       {', '.join(d['objects'])}")
         print(f"  L             {props}")
         print(f"  measurements  {d['measurements']['count']} values; weighed: {weighed or 'none'}")

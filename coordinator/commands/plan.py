@@ -141,7 +141,7 @@ def _listing(result, n_blocks: int, domain: str) -> str:
 
 def run(args: argparse.Namespace) -> int:
     from coordinator import domains
-    from planner import task_planner
+    from planner.blocks.model import PlanningError
 
     try:
         task = domains.task_half(args.domain)
@@ -166,7 +166,7 @@ def run(args: argparse.Namespace) -> int:
     try:
         result = task.plan(state, transition, costs, block_classes=classes,
                            max_steps=max_steps, time_limit=time_limit)
-    except task_planner.PlanningError as exc:
+    except PlanningError as exc:
         raise UsageError(_flag_message(str(exc))) from None
     if args.json:
         print(json.dumps({"domain": args.domain, "blocks": n_blocks, **result.to_dict()}, indent=2))

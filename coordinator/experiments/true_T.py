@@ -21,6 +21,12 @@ def _physics(domain: str):
     return load(domain)
 
 
+def _physics_spec(domain: str):
+    from sim_workers.domains import spec
+
+    return spec(domain)
+
+
 def probe_jobs(n_blocks: int, domain: str = "container") -> list[tuple[str, int]]:
     """(action, load) of every probe T* needs: the domain's ``t_star_probe_jobs``."""
     return _physics(domain).t_star_probe_jobs(n_blocks)
@@ -33,6 +39,9 @@ def t_star_params(spec: Spec, n_blocks: int = 8, setting: Setting | None = None)
               "seed": spec.probe_seed}
     if spec.domain != "container":          # (cached container estimates stay valid)
         params["domain"] = spec.domain
+    version = _physics_spec(spec.domain).version
+    if version != 1:                        # a cache without one is version 1's
+        params["domain_version"] = version
     if spec.name == "weights":              # T* of the heavy blocks, Y at the true mass
         params["options"] = {"density": WEIGHTS_TRUE_DENSITY, "force_from_mass": True}
     if setting is not None and setting.t_star:

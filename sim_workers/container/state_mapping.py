@@ -12,8 +12,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..configuration import Configuration, face_yaw, quat_from_yaw, rotate_z, yaw_of
-from ..terms import block_index, parse_action  # noqa: F401  (used as state_mapping.*)
+from ..configuration import Configuration, quat_from_yaw, rotate_z, yaw_of
+from ..blocks.hand import grasp_yaw as _grasp_yaw, in_hand as _in_hand
+from ..blocks.terms import block_index, parse_action  # noqa: F401  (used as state_mapping.*)
 from .columns import LEFT, column_of, column_x, side_of, tallest_pile, two_columns
 from .spec import ContainerSpec
 
@@ -26,25 +27,6 @@ def container_location(spec: ContainerSpec, config: Configuration) -> str:
     d_init = np.linalg.norm(cxy - spec.location_xy("init"))
     d_goal = np.linalg.norm(cxy - spec.location_xy("goal"))
     return "goal" if d_goal < d_init else "init"
-
-
-# The box around the fingertips where a block counts as held (metres). The floating gripper
-# is the same in both built-in domains, so stack_and_push reads held blocks with this too.
-HAND_OPEN_MARGIN = 0.01          # opening above max_opening minus this: nothing is gripped
-HAND_X_MARGIN = 0.012            # beyond the finger's half thickness, across the fingers
-HAND_HALF_Y = 0.045              # along the fingers (half the widest opening)
-HAND_DZ = (-0.05, 0.035)         # block centre relative to the tool point
-HAND_MIN_Z = 0.06                # a held block is lifted off the floor
-
-
-def _in_hand(spec: ContainerSpec, config: Configuration, p: np.ndarray) -> bool:
-    g = config.robot
-    if g[4] > spec.max_opening - HAND_OPEN_MARGIN:       # fingers wide open: nothing is gripped
-        return False
-    local = rotate_z(p[:2] - g[:2], -g[3])
-    dz = p[2] - g[2]
-    return (abs(local[0]) < spec.finger_half[0] + HAND_X_MARGIN and abs(local[1]) < HAND_HALF_Y
-            and HAND_DZ[0] < dz < HAND_DZ[1] and p[2] > HAND_MIN_Z)
 
 
 def _in_container(spec: ContainerSpec, config: Configuration, p: np.ndarray) -> bool:
@@ -95,12 +77,6 @@ def symbolic_state(spec: ContainerSpec, config: Configuration) -> frozenset[str]
     if HELD not in labels:
         atoms.add("hand_empty(r)")
     return frozenset(atoms)
-
-
-def _grasp_yaw(quat: np.ndarray) -> float:
-    """The block's yaw folded into [-pi/4, pi/4): a cube looks the same every quarter turn."""
-    yaw = face_yaw(quat)
-    return float((yaw + np.pi / 4) % (np.pi / 2) - np.pi / 4)
 
 
 def action_pose(spec: ContainerSpec, sizes: np.ndarray, config: Configuration, action: str) -> np.ndarray:

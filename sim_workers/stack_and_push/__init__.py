@@ -9,7 +9,7 @@ import numpy as np
 
 from ..base import PhysicsDomain
 from ..configuration import Configuration, Workspace
-from ..container.scene import GRIPPER_MASS
+from ..blocks.scene import GRIPPER_MASS
 from ..obstacles import Box, cube_box, hand_boxes, per_block
 from ..properties import MAX_DENSITY, MIN_DENSITY, SIZES_VARIATION_SCALE, PropertyError, PropertySpace, block_properties
 from . import efforts, probes, scene, state_mapping, trajectories

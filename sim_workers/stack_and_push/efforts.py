@@ -23,7 +23,7 @@ from __future__ import annotations
 import numpy as np
 
 from .. import trajectory as tr
-from ..container.scene import GRIPPER_MASS
+from ..blocks.scene import GRIPPER_MASS
 from .spec import StackAndPushSpec
 
 GRAVITY = 9.81

@@ -11,7 +11,7 @@ from dataclasses import dataclass
 import numpy as np
 import pybullet as pb
 
-from ..container.scene import build_blocks, build_gripper, build_table, configure_physics
+from ..blocks.scene import build_blocks, build_gripper, build_table, configure_physics
 from .spec import StackAndPushSpec
 
 

@@ -12,8 +12,8 @@ from __future__ import annotations
 import numpy as np
 
 from ..configuration import Configuration, quat_from_yaw, quat_to_matrix
-from ..container.state_mapping import _grasp_yaw, _in_hand
-from ..terms import block_index, parse_action  # noqa: F401  (used as state_mapping.*)
+from ..blocks.hand import grasp_yaw as _grasp_yaw, in_hand as _in_hand
+from ..blocks.terms import block_index, parse_action  # noqa: F401  (used as state_mapping.*)
 from .spec import StackAndPushSpec
 
 HELD, TOWER, GOAL, INIT, RAIL, TABLE = "held", "tower", "goal", "init", "rail", "table"

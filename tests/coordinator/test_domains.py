@@ -205,3 +205,54 @@ def test_every_measurement_channel_is_listed_by_name():
         assert [c["index"] for c in m["channels"]] == list(range(m["count"])), name
     names = [c["name"] for c in describe("container")["measurements"]["channels"]]
     assert names[:3] == ["finger_opening", "b1_x", "b1_y"] and names[-1] == "b8_y" and len(names) == 17
+
+
+# -- versions (issue 26, item 2) ---------------------------------------------------------
+
+def test_every_domain_has_a_version_and_a_versioned_id(capsys):
+    for name in NAMES:
+        s = domains.spec(name)
+        assert s.version >= 1 and s.id == f"{name}-v{s.version}"
+        assert domains.spec(s.id) is s                       # "name-vN" names the same spec
+    assert main(["domains", "--json"]) == 0
+    listed = json.loads(capsys.readouterr().out)["domains"]
+    assert all(listed[n]["id"] == f"{n}-v{listed[n]['version']}" for n in NAMES)
+    with pytest.raises(ValueError, match="container-v9.*is not installed.*container-v1"):
+        domains.spec("container-v9")
+
+
+def test_a_run_config_takes_a_versioned_id_and_stores_the_name():
+    from coordinator.run_config import RunConfig
+
+    assert RunConfig(domain="stack_and_push-v1").domain == "stack_and_push"
+    with pytest.raises(ValueError, match="stack_and_push-v2.*is not installed"):
+        RunConfig(domain="stack_and_push-v2")
+    assert main(["run", "--domain", "container-v7", "--episodes", "1"]) == 2
+
+
+def test_a_checkpoint_carries_the_domain_version_and_a_changed_domain_refuses_it(monkeypatch):
+    """A checkpoint without a version (every one before issue 26) is version 1's; one made
+    with another version than the installed domain's is refused by name, not resumed with
+    a scene or contexts it was not learned in."""
+    from coordinator.run_config import RunConfig
+    from coordinator.session import Session
+
+    s = Session(RunConfig(particles=8, seed=2, particle_budget="fixed"))
+    data = json.loads(json.dumps(s.to_checkpoint()))
+    assert data["domain_version"] == 1
+    old = dict(data)
+    old.pop("domain_version")
+    assert Session.from_checkpoint(old).to_checkpoint() == data
+    monkeypatch.setitem(domains.BUILTIN, "container", domains.DomainSpec(
+        "container", domains.BUILTIN["container"].physics, domains.BUILTIN["container"].task, version=2))
+    with pytest.raises(ValueError, match="made with container-v1; the installed domain is container-v2"):
+        Session.from_checkpoint(data)
+
+
+def test_a_plugin_version_must_be_a_positive_integer():
+    from sim_workers.domains import _version
+
+    assert _version(3, "x") == 3
+    for bad in (0, -1, "2", 1.5, True):
+        with pytest.raises(ValueError, match="version"):
+            _version(bad, "x")

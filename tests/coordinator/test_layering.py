@@ -71,10 +71,10 @@ def tree_copy(tmp_path_factory) -> Path:
 
 
 @pytest.mark.parametrize("module, added, message", [
-    ("planner/symbolic.py", "import coordinator", "planner is not allowed to import coordinator"),
+    ("planner/container/symbolic.py", "import coordinator", "planner is not allowed to import coordinator"),
     ("coordinator/session.py", "import api", "coordinator is not allowed to import api"),
     ("sim_workers/probe.py", "from planner import symbolic", "sim_workers is not allowed to import planner"),
-    ("planner/container.py", "import sim_workers.domains", "planner is not allowed to import sim_workers"),
+    ("planner/container/__init__.py", "import sim_workers.domains", "planner is not allowed to import sim_workers"),
 ])
 def test_an_arrow_the_wrong_way_breaks_the_contract(tree_copy, tmp_path, module, added, message):
     """One import against the layering, appended to a copy: the contract is reported
@@ -85,6 +85,22 @@ def test_an_arrow_the_wrong_way_breaks_the_contract(tree_copy, tmp_path, module,
     path.write_text(path.read_text() + f"\n{added}  # against the layering\n")
     code, out, origins = _lint(root, str(root))
     assert origins["coordinator"] == (root / "coordinator").resolve(), out
-    importer = module[:-3].replace("/", ".")
+    importer = module[:-3].replace("/", ".").removesuffix(".__init__")
     assert code == 1 and f"{CONTRACT} BROKEN" in out, out
     assert message in out and f"- {importer} -> " in out, out
+
+
+@pytest.mark.parametrize("module, added", [
+    ("sim_workers/stack_and_push/scene.py", "from sim_workers.container import scene"),
+    ("planner/stack_and_push/__init__.py", "from planner.container import model"),
+])
+def test_a_domain_importing_another_domain_breaks_the_contract(tree_copy, tmp_path, module, added):
+    """The built-in domains are siblings over the shared kits (issue 26): one importing the
+    other's internals is reported, naming the importer."""
+    root = tmp_path / "tree"
+    shutil.copytree(tree_copy, root)
+    path = root / module
+    path.write_text(path.read_text() + f"\n{added}  # another domain's internals\n")
+    code, out, _ = _lint(root, str(root))
+    assert code == 1 and "a domain imports no other domain BROKEN" in out, out
+    assert f"{CONTRACT} KEPT" in out, out

@@ -1,8 +1,8 @@
 """The stack-and-push domain's task half (``planner.domain.TaskDomain``): T's contexts
 (tower height before a stack, tower height pushed), the utility terms and the clingo
-planner (``planner/asp/stack_and_push.lp`` on ``planner.task_planner``'s weights and
+planner (``planner/asp/stack_and_push.lp`` on ``planner.blocks.trips``' weights and
 multi-shot driver). Its symbolic model (atoms, actions, checked states, the tower) is
-``planner.stack_and_push_symbolic``; its names are imported here, as before the split.
+``planner.stack_and_push.symbolic``; its names are imported here, as before the split.
 """
 from __future__ import annotations
 
@@ -13,15 +13,15 @@ from typing import Iterable, Mapping, Sequence
 
 import numpy as np
 
-from planner import task_model as tm, task_planner as tp
+from planner.blocks import model as tm, trips as tp
 from planner.domain import DENSITY_BOUNDS, Context, TaskDomain, UnknownAction
-from planner.stack_and_push_symbolic import (GOAL, PICKUP_PLACES, PLACES, ROBOT, START,  # noqa: F401
+from planner.stack_and_push.symbolic import (GOAL, PICKUP_PLACES, PLACES, ROBOT, START,  # noqa: F401
                                              TOWER, apply, block_index, blocks, check_action,
                                              held_block, initial_state, is_goal, parse_state,
                                              parse_term, tower)
-from planner.task_model import Plan, PlanningError
+from planner.blocks.model import Plan, PlanningError
 
-ENCODING = Path(__file__).with_name("asp") / "stack_and_push.lp"
+ENCODING = Path(__file__).resolve().parents[1] / "asp" / "stack_and_push.lp"
 
 
 # --------------------------------------------------------------------------- contexts
@@ -42,7 +42,7 @@ def context_of(state: frozenset[str], action: str) -> Context:
 # --------------------------------------------------------------------------- utility
 
 def _action_value(name: str, args: tuple[str, ...], state: frozenset[str],
-                  model: tm._Model, classes: Mapping[str, str]) -> tuple[float, int | None]:
+                  model: tm.Model, classes: Mapping[str, str]) -> tuple[float, int | None]:
     c = model.costs
     if name == "pickup":
         p = model.p_pickup[classes[args[1]]]
@@ -57,7 +57,7 @@ def _action_value(name: str, args: tuple[str, ...], state: frozenset[str],
     return tm.push_value(c, float(model.p_push[h - 1]), h, redo), h
 
 
-def _evaluate(state: frozenset[str], actions: Sequence[str], model: tm._Model,
+def _evaluate(state: frozenset[str], actions: Sequence[str], model: tm.Model,
               classes: Mapping[str, str]) -> tuple[float, tuple[int, ...], frozenset[str]]:
     return tm.simulate_plan(state, actions, check_action, apply,
                             lambda name, args, now: _action_value(name, args, now, model, classes))
@@ -73,10 +73,10 @@ def _checked_state(state: Iterable[str]) -> frozenset[str]:
 
 
 def _model(start: frozenset[str], transition: Mapping, costs: Mapping | None,
-           block_classes: Mapping[str, str] | None) -> tuple[dict, tm._Model]:
+           block_classes: Mapping[str, str] | None) -> tuple[dict, tm.Model]:
     names = blocks(start)
-    classes = tm._block_classes(names, block_classes)
-    return classes, tm._validate_transition(transition, len(names), set(classes.values()), costs)
+    classes = tm.classes_of(names, block_classes)
+    return classes, tm.validate_transition(transition, len(names), set(classes.values()), costs)
 
 
 def expected_utility(state: Iterable[str], actions: Sequence[str], transition: Mapping,
@@ -90,7 +90,7 @@ def expected_utility(state: Iterable[str], actions: Sequence[str], transition: M
 
 # --------------------------------------------------------------------------- planning
 
-def _problem(state: frozenset[str]) -> tp._Problem:
+def _problem(state: frozenset[str]) -> tp.Problem:
     place = {}
     for atom in state:
         if atom.startswith("is_in("):
@@ -99,11 +99,11 @@ def _problem(state: frozenset[str]) -> tp._Problem:
                 place[b] = where
     # Blocks off their supply slot first (a fallen block blocks the rail), then by index.
     order = sorted(place, key=lambda b: (place[b] == "init", block_index(b)))
-    return tp._Problem(tuple(order), place, held_block(state), len(tower(state)), False,
+    return tp.Problem(tuple(order), place, held_block(state), len(tower(state)), False,
                        return_push=False)
 
 
-def _name_actions(problem: tp._Problem, steps: Sequence[str]) -> tuple[str, ...]:
+def _name_actions(problem: tp.Problem, steps: Sequence[str]) -> tuple[str, ...]:
     queue, held, out = list(problem.order), problem.held, []
     for step in steps:
         if step == "pick":
@@ -128,7 +128,7 @@ def plan(state: Iterable[str], transition: Mapping, costs: Mapping | None = None
     if max_steps is not None and (isinstance(max_steps, bool) or
                                   not isinstance(max_steps, numbers.Integral) or max_steps < 0):
         raise PlanningError(f"max_steps: expected an integer >= 0, got {max_steps!r}")
-    if not tm._is_number(time_limit) or not float(time_limit) > 0:
+    if not tm.is_number(time_limit) or not float(time_limit) > 0:
         raise PlanningError(f"time_limit: expected seconds > 0, got {time_limit!r}")
     problem = _problem(start)
     if problem.units == 0:
@@ -141,8 +141,8 @@ def plan(state: Iterable[str], transition: Mapping, costs: Mapping | None = None
     if max_steps is not None:
         last_trips = min(last_trips, max_steps - shortest + 1)
     class_ids = {name: i for i, name in enumerate(sorted(set(classes.values())), start=1)}
-    weights = tp._weights(problem, model, classes, class_ids)
-    search = tp._optimise(problem, weights, last_trips, started + float(time_limit), ENCODING)
+    weights = tp.weights_for(problem, model, classes, class_ids)
+    search = tp.optimise(problem, weights, last_trips, started + float(time_limit), ENCODING)
     actions = _name_actions(problem, search.best_steps)
     value, loads, final = _evaluate(start, actions, model, classes)
     if not is_goal(final):
@@ -150,7 +150,7 @@ def plan(state: Iterable[str], transition: Mapping, costs: Mapping | None = None
     return Plan(actions, loads, value, search.proven, (time.perf_counter() - started) * 1e3)
 
 
-def _random_actions(problem: tp._Problem, rng: np.random.Generator) -> tuple[str, ...]:
+def _random_actions(problem: tp.Problem, rng: np.random.Generator) -> tuple[str, ...]:
     """A uniformly random waste-free plan: the waiting blocks in random order, each gap
     between consecutive stacks ending a trip (a push) with probability 1/2."""
     order = [problem.order[i] for i in rng.permutation(len(problem.order))]

@@ -1,13 +1,14 @@
 """The container domain's task half (``planner.domain.TaskDomain``): its symbolic model
-(``planner.symbolic``), T's contexts, utility terms and the clingo planner
-(``planner.task_planner``), behind the one protocol the loop speaks."""
+(``symbolic``), T's contexts, utility terms, its expected utility (``model``) and the
+clingo planner (``planner``, on the block-world toolkit ``planner.blocks``), behind the
+one protocol the loop speaks."""
 from __future__ import annotations
 
 from typing import Iterable, Mapping, Sequence
 
 import numpy as np
 
-from planner import symbolic, task_model, task_planner
+from planner.container import model as task_model, planner as task_planner, symbolic
 from planner.domain import DENSITY_BOUNDS, Context, TaskDomain, UnknownAction
 from planner.terms import parse_term
 
