@@ -10,7 +10,7 @@ Measured on this machine in one run:
   (a) in-process   one ``sim_workers.shard.Shard`` (one world), the whole batch in one call;
   (b) ray x2       two shard actors on local Ray (``ray.init(num_cpus=2)``), the batch split
                    in two, one remote call per actor per action;
-  (c) raw x2       two plain processes, each with the scene built once by ``build_scene``,
+  (c) raw x2       two plain processes, each with the scene built once by ``domain.build``,
                    calling ``stepSimulation`` as many times as the shards reported in
                    ``steps`` for its half, the gripper held static (a resting scene);
   (d) replay x2    two plain processes redoing the very same physics with a bare pybullet

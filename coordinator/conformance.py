@@ -60,6 +60,26 @@ def check_spec(d: Domain) -> str:
     return f"{len(dataclasses.fields(d.physics.spec))} fields"
 
 
+def check_scene(d: Domain) -> str:
+    """The scene is data an engine can build (``sim_workers.scene``): every object is a
+    body, each body's boxes have positive extents and its mass is not negative, and the
+    description survives pickling (it travels to engine backends as a value)."""
+    import pickle
+
+    truth = _truth(d)
+    desc = d.physics.scene_description(d.physics.properties(truth))
+    names = [b.name for b in desc.bodies]
+    assert len(set(names)) == len(names), f"body names repeat: {names}"
+    assert set(desc.objects) <= set(names), f"objects {set(desc.objects) - set(names)} are not bodies"
+    n_objects = len(d.physics.initial_configuration(truth).objects)
+    assert len(desc.objects) == n_objects, f"{len(desc.objects)} objects declared, {n_objects} in a configuration"
+    for b in desc.bodies:
+        assert b.shapes and all(min(s.half) > 0 for s in b.shapes), f"body {b.name}: a shape without extent"
+        assert b.mass >= 0 and b.friction >= 0, f"body {b.name}: negative mass or friction"
+    assert pickle.loads(pickle.dumps(desc)) == desc, "the description does not survive pickling"
+    return f"{len(desc.bodies)} bodies, {len(desc.objects)} objects"
+
+
 def _truth(d: Domain) -> dict:
     return d.physics.true_properties()
 
@@ -256,6 +276,7 @@ def check_measurements(d: Domain) -> str:
 CHECKS: dict[str, Callable[[Domain], str]] = {
     "structure": check_structure,
     "spec": check_spec,
+    "scene": check_scene,
     "initial_state": check_initial_state,
     "place_keeps_state": check_place_keeps_state,
     "refused_properties": check_refused_properties,

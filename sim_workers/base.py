@@ -25,6 +25,7 @@ import numpy as np
 
 from .configuration import Configuration, Workspace
 from .properties import PropertySpace
+from .scene import SceneDescription
 
 # The motion planner's bounds (x, y, z, yaw) when a domain declares none.
 DEFAULT_WORKSPACE = Workspace(np.array([-0.5, -0.6, 0.0, -np.pi]), np.array([1.2, 0.6, 0.6, np.pi]))
@@ -83,8 +84,17 @@ class PhysicsDomain(abc.ABC):
 
     # -- the scene --------------------------------------------------------------------
     @abc.abstractmethod
+    def scene_description(self, props: dict) -> SceneDescription:
+        """The scene for these properties as data (``sim_workers.scene``): bodies of boxes
+        with mass, pose and friction, which of them are the objects, the gripper, the
+        physics settings. An engine backend builds it (the engine seam)."""
+
     def build(self, client: int, props: dict) -> Any:
-        """Build the scene in engine client `client`; the handles the world drives."""
+        """Build the scene in pybullet client `client` (``sim_workers.engines``); the
+        handles the world drives."""
+        from .engines.pybullet_engine import build_scene    # (pybullet only where a world is built)
+
+        return build_scene(client, self.scene_description(self.properties(props)))
 
     @property
     def base_max_force(self) -> float:

@@ -8,6 +8,7 @@ import numpy as np
 
 from ..base import PhysicsDomain
 from ..configuration import Configuration
+from ..scene import SceneDescription
 from ..obstacles import Box, body_box, cube_box, hand_boxes, per_block
 from ..properties import MAX_DENSITY, MIN_DENSITY, SIZES_VARIATION_SCALE, PropertyError, block_properties
 from . import columns, probes, scene, state_mapping, trajectories
@@ -66,9 +67,9 @@ class ContainerDomain(PhysicsDomain):
         return block_properties(props, self.spec.n_blocks, self.spec.density)
 
     # -- physics ---------------------------------------------------------------------
-    def build(self, client: int, props: dict) -> scene.SceneHandles:
+    def scene_description(self, props: dict) -> SceneDescription:
         p = self.properties(props)
-        return scene.build_scene(client, self.spec, p["block_sizes"], p["block_masses"])
+        return scene.scene_description(self.spec, p["block_sizes"], p["block_masses"])
 
     def initial_configuration(self, props: dict) -> Configuration:
         return state_mapping.initial_configuration(self.spec, self.properties(props)["block_sizes"])

@@ -9,6 +9,7 @@ import numpy as np
 
 from ..base import PhysicsDomain
 from ..configuration import Configuration, Workspace
+from ..scene import SceneDescription
 from ..blocks.scene import GRIPPER_MASS
 from ..obstacles import Box, cube_box, hand_boxes, per_block
 from ..properties import MAX_DENSITY, MIN_DENSITY, SIZES_VARIATION_SCALE, PropertyError, PropertySpace, block_properties
@@ -113,9 +114,9 @@ class StackAndPushDomain(PhysicsDomain):
         return props
 
     # -- physics ---------------------------------------------------------------------
-    def build(self, client: int, props: dict) -> scene.SceneHandles:
+    def scene_description(self, props: dict) -> SceneDescription:
         p = self.properties(props)
-        return scene.build_scene(client, self.spec, p["block_sizes"], p["block_masses"])
+        return scene.scene_description(self.spec, p["block_sizes"], p["block_masses"])
 
     def initial_configuration(self, props: dict) -> Configuration:
         return state_mapping.initial_configuration(self.spec, self.properties(props)["block_sizes"])

@@ -144,8 +144,8 @@ def test_the_protocol_lists_required_and_optional_members():
     from planner.domain import TaskDomain
     from sim_workers.base import optional_members, required_members
 
-    assert {"name", "build", "symbolic_state", "action_pose", "measurements"} <= set(required_members())
-    assert {"props_from_row", "action_poses", "pose_classes", "workspace", "senses", "L",
+    assert {"name", "scene_description", "symbolic_state", "action_pose", "measurements"} <= set(required_members())
+    assert {"build", "props_from_row", "action_poses", "pose_classes", "workspace", "senses", "L",
             "measurement_channels", "probe_loads", "execution_jitter"} <= set(optional_members())
     assert {"name", "plan", "context_of", "contexts"} <= set(required_members(TaskDomain))
     assert {"http_options", "http_truth", "actions_for_loads"} <= set(optional_members(TaskDomain))

@@ -160,3 +160,22 @@ def test_fingers_that_land_on_a_block_stop_on_its_top():
     after = _closing_phase(0.0315)            # opening 0.036 < 0.045: fingers land on the top
     assert after.objects[3, 2] > TRUE / 2 - 0.003       # the block is not pushed into the table
     assert after.robot[2] > TRUE - 0.005                # the fingertips rest on its top
+
+
+# -- the engine seam (issue 26, item 5) ---------------------------------------------------
+
+@pytest.mark.parametrize("name", ["container", "stack_and_push"])
+def test_the_scene_is_declared_as_data_and_follows_L(name):
+    """Which properties of L set which physical parameter is explicit in the description:
+    a block's size is its box, its mass the body's mass; the fixtures do not move with L."""
+    domain = load(name, n_blocks=3)
+    small = domain.properties({"block_sizes": np.array([0.03, 0.04, 0.05])})
+    big = domain.properties({"block_sizes": np.array([0.05, 0.05, 0.06])})
+    a, b = domain.scene_description(small), domain.scene_description(big)
+    for i, (s, m) in enumerate(zip(small["block_sizes"], small["block_masses"])):
+        body = a.body(f"b{i + 1}")
+        assert body.shapes[0].half == pytest.approx((s / 2,) * 3) and body.mass == pytest.approx(m)
+    assert a.body("b3").mass < b.body("b3").mass
+    fixtures = [n for n in (x.name for x in a.bodies) if not n.startswith("b")]
+    assert fixtures and all(a.body(n) == b.body(n) for n in fixtures)
+    assert a.gripper == b.gripper and a.objects == b.objects
