@@ -33,6 +33,7 @@ DomainSpec = physics_registry.DomainSpec
 BUILTIN = physics_registry.BUILTIN
 specs = physics_registry.specs
 spec = physics_registry.spec
+DEFAULT_DOMAIN = physics_registry.DEFAULT_DOMAIN
 
 
 def names() -> list[str]:

@@ -15,8 +15,6 @@ from typing import Callable, Iterator, Sequence
 
 import numpy as np
 
-from planner.container import context_of   # the container's contexts: the default
-
 __all__ = ["Transition", "ExperiencePool", "SOURCES"]
 
 SOURCES = ("real", "sim")
@@ -39,11 +37,6 @@ class Transition:
     def success(self) -> bool:
         return self.next_state == self.expected
 
-    @property
-    def context(self) -> tuple[str, int] | None:
-        """The container's context of this record (see ``context_under`` for any domain)."""
-        return context_of(self.state, self.action)
-
     def context_under(self, context_fn: Callable) -> tuple[str, int] | None:
         """The T context of this record under a domain's ``context_of``."""
         return context_fn(self.state, self.action)
@@ -52,9 +45,10 @@ class Transition:
 class ExperiencePool:
     """Aggregated real and simulated transitions; ``counts()`` is what T is built from."""
 
-    def __init__(self, context_fn: Callable | None = None) -> None:
-        # The domain's (state, action) -> context; it also validates every action added.
-        self.context_fn = context_of if context_fn is None else context_fn
+    def __init__(self, context_fn: Callable) -> None:
+        # The domain's (state, action) -> context (its task half's context_of); it also
+        # validates every action added.
+        self.context_fn = context_fn
         self._weights: dict[_Key, float] = {}
         self._context: dict[_Key, tuple[str, int] | None] = {}  # derived, cached per record
         self._counts: dict[str, dict[tuple[str, int], tuple[float, float]]] | None = None
@@ -163,7 +157,7 @@ class ExperiencePool:
                 "n_real": self.n_real, "n_sim_actions": self.n_sim_actions}
 
     @classmethod
-    def from_dict(cls, data: dict, context_fn: Callable | None = None) -> "ExperiencePool":
+    def from_dict(cls, data: dict, context_fn: Callable) -> "ExperiencePool":
         pool = cls(context_fn)
         table = [frozenset(atoms) for atoms in data["states"]]
         for src, i, a, j, k, w in data["records"]:

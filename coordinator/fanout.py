@@ -121,7 +121,7 @@ class ShardPool:
     >>> pool.close()
     """
 
-    def __init__(self, domain: str = "container", options: dict | None = None,
+    def __init__(self, domain: str, options: dict | None = None,
                  n_shards: int | None = None, num_cpus: float = 1.0, check_s: float = 1.0,
                  wait_for_cpus_s: float = 60.0) -> None:
         self.domain = domain

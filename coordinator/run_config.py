@@ -7,6 +7,7 @@ import numpy as np
 from pydantic import AfterValidator, BaseModel, ConfigDict, Field, model_validator
 
 from planner.blocks.model import DEFAULT_COSTS
+from sim_workers.domains import DEFAULT_DOMAIN
 
 from .agents import AGENTS
 
@@ -50,7 +51,7 @@ class RunConfig(BaseModel):
     """Everything that determines a run; with the same values a run is reproducible."""
 
     model_config = ConfigDict(extra="forbid")
-    domain: DomainName = "container"
+    domain: DomainName = DEFAULT_DOMAIN
     agent: AgentName = "tmoc"
     particles: int = Field(32, ge=1, le=5000)
     # The particle budget (issue 15): "fixed" keeps `particles`; "kld" chooses the count for

@@ -20,7 +20,6 @@ from typing import Callable, Iterator
 import numpy as np
 
 from planner.blocks.model import PlanningError
-from planner.terms import parse_term
 from sim_workers.configuration import Configuration
 from sim_workers.properties import SIZES_VARIATION_SCALE
 from sim_workers.trajectory import columns_of
@@ -271,11 +270,8 @@ class Session:
     def _held_size(self, sizes: np.ndarray) -> float:
         """The believed size of the block in the hand (0: the hand is empty)."""
         names = list(self.domain.block_names)
-        for atom in self.state:
-            name, args = parse_term(atom, "atom")
-            if name == "is_holding" and len(args) == 2 and args[1] in names:
-                return float(sizes[names.index(args[1])])
-        return 0.0
+        held = self.domain.held_object(self.state)
+        return float(sizes[names.index(held)]) if held in names else 0.0
 
     def next_step(self) -> PendingStep | None:
         """The next action with its pose, trajectory and expected effect (None: episode over)."""
@@ -427,7 +423,8 @@ class Session:
                         "identified": self.belief is not None and bool(np.all(
                             std[j * k:(j + 1) * k] <= IDENTIFIED_STD_SHARE * prior_std[j * k:(j + 1) * k]))}
                  for j, (name, unit) in enumerate(zip(self.L.names, self.L.units))}
-        out = {"size_mean": props["size"]["mean"], "size_std": props["size"]["std"]}
+        # The size's summary under its own keys, for a domain whose L has one (both built-ins).
+        out = {"size_mean": props["size"]["mean"], "size_std": props["size"]["std"]} if "size" in props else {}
         if self.belief is not None:
             out.update(mean=[float(v) for v in mean], std=[float(v) for v in std],
                        measurement_sigma=[float(v) for v in self.reweighting.sigma()])

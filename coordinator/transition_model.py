@@ -43,31 +43,20 @@ from typing import TYPE_CHECKING, Callable, Sequence
 
 import numpy as np
 
-from planner.container import context_of as _container_context_of
 from planner.terms import parse_term   # re-exported: the one parser of ground terms
 
 if TYPE_CHECKING:  # only for the type hint of from_experience; no import cycle at runtime
     from coordinator.experience import ExperiencePool
 
-__all__ = ["ACTION_NAMES", "TransitionModel", "container_contexts", "context_of", "parse_term"]
-
-ACTION_NAMES = ("pickup", "stack", "push")
-# The container's context map moved to its task half; re-exported for existing callers.
-context_of = _container_context_of
-
-
-def container_contexts(n_blocks: int) -> tuple[tuple[str, int], ...]:
-    """The container's contexts: pickup 0, stack 0..n-1, push 1..n."""
-    n = int(n_blocks)
-    return (("pickup", 0),) + tuple(("stack", k) for k in range(n)) \
-        + tuple(("push", k) for k in range(1, n + 1))
+__all__ = ["TransitionModel", "parse_term"]
 
 
 @dataclass(eq=False)  # arrays inside: element-wise == would be ambiguous
 class TransitionModel:
     """Weighted success counts per (action, context) and the probabilities they imply.
 
-    >>> t = TransitionModel(n_blocks=2)
+    >>> from planner.container import TASK      # (any domain's task half)
+    >>> t = TransitionModel.for_task(TASK, 2)
     >>> t.observe("push", 2, success=False); t.observe("push", 2, success=True)
     >>> t.probability("push", 2), t.probability("push", 1)
     (0.6666666666666666, 1.0)
@@ -80,8 +69,10 @@ class TransitionModel:
     # name -> (weighted successes, weighted trials) per context slot; see _slot for indexing
     successes: dict[str, np.ndarray] = field(default_factory=dict)
     trials: dict[str, np.ndarray] = field(default_factory=dict)
-    contexts: Sequence[tuple[str, int]] | None = None      # default: the container's
-    context_fn: Callable | None = field(default=None, repr=False)   # default: context_of
+    # The domain's contexts (its task half's contexts(n_blocks)) and context_of: required
+    # (the model knows no domain; ``for_task`` takes both from a task half).
+    contexts: Sequence[tuple[str, int]] | None = None
+    context_fn: Callable | None = field(default=None, repr=False)
     # (action, context) -> the power prior's delta applied to its simulated counts (only
     # contexts with simulated evidence, and only when built with discount=True)
     discounts: dict = field(default_factory=dict, repr=False)
@@ -93,10 +84,10 @@ class TransitionModel:
         if not (self.prior_successes >= 0 and math.isfinite(self.prior_successes)):
             raise ValueError(f"prior_successes: must be finite and >= 0, got {self.prior_successes}")
         self.prior_successes = float(self.prior_successes)
-        contexts = container_contexts(self.n_blocks) if self.contexts is None else self.contexts
-        self.contexts = tuple((str(a), int(k)) for a, k in contexts)
-        if self.context_fn is None:
-            self.context_fn = context_of
+        if self.contexts is None or self.context_fn is None:
+            raise ValueError("contexts, context_fn: required, the task half's contexts(n_blocks) "
+                             "and context_of (TransitionModel.for_task)")
+        self.contexts = tuple((str(a), int(k)) for a, k in self.contexts)
         # name -> sorted context indices; slot i of a name's arrays is its i-th index
         self._index: dict[str, list[int]] = {}
         for name, k in self.contexts:
@@ -151,7 +142,8 @@ class TransitionModel:
         """``observe`` with the context read off the state; unlearned actions are skipped.
 
         >>> full = frozenset({"at_container(b1,c)", "at_container(b2,c)"})
-        >>> t = TransitionModel(n_blocks=2)
+        >>> from planner.container import TASK
+        >>> t = TransitionModel.for_task(TASK, 2)
         >>> t.observe_transition(full, "push(r,c,init,goal)", success=False)   # context push 2
         >>> t.probability_of(full, "push(r,c,init,goal)"), t.probability_of(full, "push(r,c,goal,init)")
         (0.5, 1.0)
@@ -192,13 +184,18 @@ class TransitionModel:
             "successes": {k: v.tolist() for k, v in self.successes.items()},
             "trials": {k: v.tolist() for k, v in self.trials.items()},
         }
-        if self.contexts != container_contexts(self.n_blocks):
-            out["contexts"] = [list(c) for c in self.contexts]
+        out["contexts"] = [list(c) for c in self.contexts]
         return out
 
     @classmethod
-    def from_dict(cls, data: dict, context_fn: Callable | None = None) -> "TransitionModel":
-        contexts = data.get("contexts")
+    def for_task(cls, task, n_blocks: int, **kwargs) -> "TransitionModel":
+        """An empty T over a task half's contexts (``planner.domain.TaskDomain``)."""
+        return cls(n_blocks, contexts=task.contexts(int(n_blocks)), context_fn=task.context_of, **kwargs)
+
+    @classmethod
+    def from_dict(cls, data: dict, context_fn: Callable, contexts: Sequence | None = None) -> "TransitionModel":
+        """From ``to_dict``; `contexts` for data that does not carry its own."""
+        contexts = data.get("contexts", contexts)
         return cls(
             n_blocks=int(data["n_blocks"]),
             prior_successes=float(data["prior_successes"]),
@@ -228,26 +225,28 @@ class TransitionModel:
         counts as much as one real trial.
 
         >>> from coordinator.experience import ExperiencePool
+        >>> from planner.container import TASK
         >>> full, one = frozenset({"at_container(b1,c)", "at_container(b2,c)"}), frozenset({"at_container(b1,c)"})
-        >>> pool = ExperiencePool()
+        >>> pool = ExperiencePool(TASK.context_of)
+        >>> on = dict(contexts=TASK.contexts(2), context_fn=TASK.context_of)
         >>> pool.add_real(full, "push(r,c,init,goal)", one, full)          # a block fell
         >>> pool.add_simulated(full, "push(r,c,init,goal)", [full, one], full, np.array([0.75, 0.25]))
-        >>> round(TransitionModel.from_experience(pool, 2).probability("push", 2), 4)   # (0 + 0.75 + 1) / (1 + 1 + 1)
+        >>> round(TransitionModel.from_experience(pool, 2, **on).probability("push", 2), 4)   # (0 + 0.75 + 1) / (1 + 1 + 1)
         0.5833
-        >>> TransitionModel.from_experience(pool, 2, sim_weight=0).probability("push", 2)
+        >>> TransitionModel.from_experience(pool, 2, sim_weight=0, **on).probability("push", 2)
         0.5
 
         With ``discount`` each context's simulated counts are scaled by ``sim_discount``
         (module docstring): three real failures where the worlds predicted three successes
         leave little of the simulated evidence.
 
-        >>> pool = ExperiencePool()
+        >>> pool = ExperiencePool(TASK.context_of)
         >>> for _ in range(3):
         ...     pool.add_real(full, "push(r,c,init,goal)", one, full)
         ...     pool.add_simulated(full, "push(r,c,init,goal)", [full], full, np.array([1.0]))
-        >>> round(TransitionModel.from_experience(pool, 2).probability("push", 2), 3)
+        >>> round(TransitionModel.from_experience(pool, 2, **on).probability("push", 2), 3)
         0.571
-        >>> t = TransitionModel.from_experience(pool, 2, discount=True)
+        >>> t = TransitionModel.from_experience(pool, 2, discount=True, **on)
         >>> round(t.probability("push", 2), 3), round(t.discounts[("push", 2)], 3)
         (0.367, 0.246)
         """

@@ -145,6 +145,11 @@ class PhysicsDomain(abc.ABC):
         coordinator averages a pose within one class only; default: one class."""
         return np.zeros(len(rows), dtype=np.int64)
 
+    def held_object(self, state: frozenset[str]) -> str | None:
+        """The object in the hand in symbolic state `state` (None: the hand is empty); the
+        transit's collision check carries its box. Default: none is ever held."""
+        return None
+
     @abc.abstractmethod
     def check_action(self, action: str) -> None:
         """ValueError naming what is wrong if `action` is not one this scene can execute."""

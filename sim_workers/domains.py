@@ -23,15 +23,27 @@ import importlib
 import re
 from dataclasses import dataclass
 from importlib import metadata
-from typing import Any, Callable, Mapping
+from typing import TYPE_CHECKING, Any, Callable, Mapping
 
-from .base import PhysicsDomain, missing_members
+if TYPE_CHECKING:
+    from .base import PhysicsDomain
 
-# What the grounded world, the shards and the coordinator need from a domain's physics:
-# the base class is the protocol (sim_workers/base.py).
-Domain = PhysicsDomain
+# (The registry imports no numpy or domain at import time: `tmoc --help` and the CLI's
+# defaults read it.)
+
+
+def __getattr__(name: str):
+    if name == "Domain":      # the protocol of a domain's physics half: its base class
+        from .base import PhysicsDomain
+
+        return PhysicsDomain
+    raise AttributeError(name)
 
 ENTRY_POINT_GROUP = "tmoc.domains"
+# The domain a request, a command or a stored record means when it names none: used at the
+# edges only (CLI, HTTP, run and experiment configurations, cache keys from before
+# domains); the service's own functions take a domain always.
+DEFAULT_DOMAIN = "container"
 _VERSIONED = re.compile(r"^(?P<name>.+)-v(?P<version>\d+)$")
 
 
@@ -66,10 +78,10 @@ BUILTIN: dict[str, DomainSpec] = {
 
 # Physics factories registered in-process (tests, notebooks): they take precedence over a
 # spec's `physics` string of the same name.
-_REGISTRY: dict[str, Callable[..., PhysicsDomain]] = {}
+_REGISTRY: dict[str, Callable[..., "PhysicsDomain"]] = {}
 
 
-def register(name: str, factory: Callable[..., PhysicsDomain]) -> None:
+def register(name: str, factory: Callable[..., "PhysicsDomain"]) -> None:
     _REGISTRY[name] = factory
 
 
@@ -157,8 +169,10 @@ def is_registered(name: str) -> bool:
     return True
 
 
-def load(name: str, **options) -> PhysicsDomain:
+def load(name: str, **options) -> "PhysicsDomain":
     """The physics half of domain `name`, built with `options` (e.g. n_blocks=8)."""
+    from .base import PhysicsDomain, missing_members
+
     s = spec(name)
     factory = _REGISTRY.get(s.name) or import_string(s.physics)
     domain = factory(**options)

@@ -52,8 +52,8 @@ def probe_actions(domain_name: str) -> tuple[str, ...]:
 
 
 def run_trial(action: str, true_size: float, believed_size: float, load_k: int,
-              rng: np.random.Generator, n_blocks: int = 8, options: dict | None = None,
-              domain: str = "container", believed_density: float | None = None) -> bool:
+              rng: np.random.Generator, n_blocks: int = 8, options: dict | None = None, *,
+              domain: str, believed_density: float | None = None) -> bool:
     """One seeded trial; True when the action had its intended symbolic effect. The world
     is the domain with jittered friction; what the trial does is the domain's
     ``probe_trial`` (each domain knows how to set up its own actions)."""
@@ -71,8 +71,8 @@ def probe_loads(domain_obj, action: str) -> range:
 
 
 def probe(action: str, true_size: float, believed_size: float | None = None, load_k: int = 4,
-          trials: int = 20, seed: int = 0, n_blocks: int = 8, options: dict | None = None,
-          domain: str = "container", believed_density: float | None = None) -> ProbeResult:
+          trials: int = 20, seed: int = 0, n_blocks: int = 8, options: dict | None = None, *,
+          domain: str, believed_density: float | None = None) -> ProbeResult:
     """Run `trials` seeded trials of `action` (one of the domain's ``probe_actions``).
 
     `believed_density` (kg/m^3) is what Y believes; it needs a domain whose Y uses mass
@@ -92,7 +92,8 @@ def probe(action: str, true_size: float, believed_size: float | None = None, loa
         raise ValueError(f"load: {load_k} is outside [{loads.start}, {loads.stop - 1}]")
     # One child generator per trial: trial t's outcome does not depend on the trial count.
     children = np.random.default_rng(seed).spawn(trials)
-    wins = sum(run_trial(action, true_size, believed, load_k, rng, n_blocks, options, domain, believed_density)
+    wins = sum(run_trial(action, true_size, believed, load_k, rng, n_blocks, options, domain=domain,
+                         believed_density=believed_density)
                for rng in children)
     fields = {f.name: getattr(world.spec, f.name) for f in dataclasses.fields(world.spec)}
     true_density = fields.get("density") if believed_density is not None or "density" in options else None

@@ -31,8 +31,8 @@ class RealityGap:
     yaw_rad: float = YAW_JITTER_RAD
 
 
-def jittered_domain(rng: np.random.Generator, friction: float = FRICTION_JITTER,
-                    domain: str = "container", **options):
+def jittered_domain(rng: np.random.Generator, friction: float = FRICTION_JITTER, *,
+                    domain: str, **options):
     """`domain` with every friction coefficient (spec fields mu_*) scaled by U(1 +- friction)."""
     base = load(domain, **options)
     mus = {f.name: getattr(base.spec, f.name) * rng.uniform(1 - friction, 1 + friction)

@@ -34,7 +34,7 @@ class Shard:
     runs in-process (tests, benchmarks, the probe).
     """
 
-    def __init__(self, domain: str = "container", options: dict | None = None, n_worlds: int = 1,
+    def __init__(self, domain: str, options: dict | None = None, n_worlds: int = 1,
                  leave_out: bool = True) -> None:
         if n_worlds < 1:
             raise ValueError(f"n_worlds: {n_worlds} must be at least 1")

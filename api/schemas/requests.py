@@ -13,6 +13,7 @@ from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, create_model, model_validator
 
+from coordinator.domains import DEFAULT_DOMAIN
 from coordinator.run_config import Costs, RunConfig, field_bounds, stored_run_config
 
 # Configuration arrays: metres / radians / unit quaternions; generous but finite bounds.
@@ -75,7 +76,7 @@ def _spec_fields(exclude: set[str], max_particles: int, max_episodes: int, max_s
         from coordinator.domains import names
         known = tuple(names())
         fields["domain"] = (Literal[known], Field(  # type: ignore[valid-type]
-            "container", description=f"the task's domain, one of: {', '.join(known)} "
+            DEFAULT_DOMAIN, description=f"the task's domain, one of: {', '.join(known)} "
                                      "(GET /v1/domains)"))
     fields["particles"] = (int, Field(
         min(RunConfig.model_fields["particles"].default, max_particles), ge=1, le=max_particles,
@@ -155,8 +156,8 @@ def _per_domain(name: str, doc: str, fields: dict, with_truth: bool) -> Any:
                 None, max_length=64, pattern=f"^({'|'.join(acts)})(:[0-9]{{1,3}})?$",
                 description="a reality gap the particle worlds do not know: ACTION:K makes every "
                             "ACTION in a T context >= K fail in the simulated reality only"))
-        if d == "container":
-            own["domain"] = (Literal["container"], Field("container", description=domain_info.description))
+        if d == DEFAULT_DOMAIN:
+            own["domain"] = (Literal[DEFAULT_DOMAIN], Field(DEFAULT_DOMAIN, description=domain_info.description))
         else:
             own["domain"] = (Literal[d], Field(description=domain_info.description))  # type: ignore[valid-type]
         label = "".join(w.title() for w in d.replace("-", "_").split("_"))
@@ -166,8 +167,8 @@ def _per_domain(name: str, doc: str, fields: dict, with_truth: bool) -> Any:
         return branches[0]
 
     def which(v: Any) -> str:
-        d = v.get("domain", "container") if isinstance(v, dict) else getattr(v, "domain", "container")
-        return TAG_PREFIX + (d if isinstance(d, str) and d in names() else "container")
+        d = v.get("domain", DEFAULT_DOMAIN) if isinstance(v, dict) else getattr(v, "domain", DEFAULT_DOMAIN)
+        return TAG_PREFIX + (d if isinstance(d, str) and d in names() else DEFAULT_DOMAIN)
 
     from typing import Union
 

@@ -19,6 +19,8 @@ import math
 import re
 from pathlib import Path
 
+from sim_workers.domains import DEFAULT_DOMAIN
+
 from . import UsageError
 
 DEFAULT_BLOCKS = 8
@@ -31,7 +33,7 @@ def register(subparsers) -> None:
     p = subparsers.add_parser(
         "plan", help="print the task plan of maximum expected utility for a transition model",
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--domain", default="container", metavar="NAME",
+    p.add_argument("--domain", default=DEFAULT_DOMAIN, metavar="NAME",
                    help="planning domain (default: container)")
     p.add_argument("--blocks", default=None, metavar="N",
                    help=f"number of blocks b1..bN (default: from --state, else {DEFAULT_BLOCKS})")

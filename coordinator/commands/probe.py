@@ -23,6 +23,8 @@ import dataclasses
 import json
 import math
 
+from sim_workers.domains import DEFAULT_DOMAIN
+
 from . import UsageError
 
 ACTIONS = ("pickup", "stack", "push")   # the container's; each domain lists its own (stack_and_push adds stand)
@@ -36,7 +38,7 @@ def register(subparsers) -> None:
         formatter_class=argparse.RawDescriptionHelpFormatter,
         epilog="Example: tmoc probe --domain container --action push --true-size 0.045 "
                "--load 8 --trials 20 --seed 1 --json")
-    p.add_argument("--domain", default="container", metavar="NAME",
+    p.add_argument("--domain", default=DEFAULT_DOMAIN, metavar="NAME",
                    help="domain to probe (default: container)")
     p.add_argument("--action", required=True, metavar="ACTION",
                    help="the domain's probe actions (container: pickup, stack, push; "

@@ -17,6 +17,8 @@ from typing import Callable
 
 import numpy as np
 
+from sim_workers.domains import DEFAULT_DOMAIN
+
 from ..agents import AGENTS as AGENT_SPECS
 from ..run_config import RunConfig
 
@@ -65,7 +67,7 @@ class ExperimentSpec:
     settings: Callable[..., list[Setting]]
     default_scale: dict
     figure: str = "curves"
-    domain: str = "container"
+    domain: str = DEFAULT_DOMAIN
     true_size: float = EXPERIMENT_TRUE_SIZE
     # Settings that depend on the domain and scale: ``settings(N, domain, scale)`` (the sweep).
     per_domain: bool = False
@@ -156,7 +158,7 @@ class Spec:
     probe_seed: int = 0
     scale: str = "default"
     settings: list[Setting] = field(default_factory=list)
-    domain: str = "container"
+    domain: str = DEFAULT_DOMAIN
     particle_budget: str = "fixed"
     min_particles: int = 8
     truths: tuple[float, ...] = ()        # run r's hidden size (empty: true_size for every run)
@@ -167,7 +169,7 @@ class Spec:
                "true_size": self.true_size, "milestones": list(self.milestones),
                "probe_trials": self.probe_trials, "probe_seed": self.probe_seed,
                "scale": self.scale}
-        if self.domain != "container":     # the committed container summaries stay valid
+        if self.domain != DEFAULT_DOMAIN:  # the committed summaries from before domains stay valid
             out["domain"] = self.domain
         if self.particle_budget != "fixed":
             out["particle_budget"], out["min_particles"] = self.particle_budget, self.min_particles

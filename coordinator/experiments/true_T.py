@@ -11,6 +11,8 @@ import json
 from pathlib import Path
 from typing import Callable, Sequence
 
+from sim_workers.domains import DEFAULT_DOMAIN
+
 from .catalogue import WEIGHTS_TRUE_DENSITY, Setting, Spec
 from .runfiles import jsonable, write_atomic
 
@@ -27,7 +29,7 @@ def _physics_spec(domain: str):
     return spec(domain)
 
 
-def probe_jobs(n_blocks: int, domain: str = "container") -> list[tuple[str, int]]:
+def probe_jobs(n_blocks: int, domain: str) -> list[tuple[str, int]]:
     """(action, load) of every probe T* needs: the domain's ``t_star_probe_jobs``."""
     return _physics(domain).t_star_probe_jobs(n_blocks)
 
@@ -37,7 +39,7 @@ def t_star_params(spec: Spec, n_blocks: int = 8, setting: Setting | None = None)
     own truth (``Setting.t_star``: e.g. the sweep's true size and density) overrides them."""
     params = {"true_size": spec.true_size, "n_blocks": n_blocks, "trials": spec.probe_trials,
               "seed": spec.probe_seed}
-    if spec.domain != "container":          # (cached container estimates stay valid)
+    if spec.domain != DEFAULT_DOMAIN:       # (caches from before domains stay valid)
         params["domain"] = spec.domain
     version = _physics_spec(spec.domain).version
     if version != 1:                        # a cache without one is version 1's
@@ -84,7 +86,7 @@ def cached_true_T(out: Path, params: dict, name: str = "true_T.json") -> dict | 
         return None
     # Probed some other way (e.g. stack-and-push before its towers were built by the
     # agent's actions): not this T*.
-    jobs = {f"{a}:{k}" for a, k in probe_jobs(params["n_blocks"], params.get("domain", "container"))}
+    jobs = {f"{a}:{k}" for a, k in probe_jobs(params["n_blocks"], params.get("domain", DEFAULT_DOMAIN))}
     return data if set(data.get("successes", {})) == jobs else None
 
 
@@ -94,7 +96,7 @@ def _probe_remote():
 
     @ray.remote(num_cpus=1)
     def probe_task(action: str, true_size: float, load_k: int, trials: int, seed: int,
-                   n_blocks: int, domain: str = "container", options: dict | None = None) -> int:
+                   n_blocks: int, domain: str, options: dict | None = None) -> int:
         return probe(action, true_size, true_size, load_k, trials, seed, n_blocks,
                      domain=domain, options=options).successes
 
@@ -104,7 +106,7 @@ def _probe_remote():
 def submit_probes(params: dict) -> list:
     """Submit every probe of T* as a Ray task (one CPU each); refs in probe_jobs order."""
     task = _probe_remote()
-    domain = params.get("domain", "container")
+    domain = params.get("domain", DEFAULT_DOMAIN)
     return [task.remote(a, params["true_size"], k, params["trials"], params["seed"], params["n_blocks"],
                         domain, params.get("options"))
             for a, k in probe_jobs(params["n_blocks"], domain)]
@@ -112,7 +114,7 @@ def submit_probes(params: dict) -> list:
 
 def write_true_T(out: Path, params: dict, counts: Sequence[int], name: str = "true_T.json") -> dict:
     """T* from the probes' success `counts` (probe_jobs order), cached in out/`name`."""
-    domain = params.get("domain", "container")
+    domain = params.get("domain", DEFAULT_DOMAIN)
     jobs = probe_jobs(params["n_blocks"], domain)
     successes = dict(zip(jobs, (int(c) for c in counts)))
     from_probes = _physics(domain).t_star_from_probes
@@ -144,7 +146,7 @@ class Optimality:
     its expected utility equals the planner's optimum (ties count: 5+3 and 3+5 are worth
     the same, and so may other splits be)."""
 
-    def __init__(self, transition: dict, costs: dict, n_blocks: int, domain: str = "container") -> None:
+    def __init__(self, transition: dict, costs: dict, n_blocks: int, domain: str) -> None:
         from ..domains import task_half
 
         self.task = task_half(domain)

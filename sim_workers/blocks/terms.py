@@ -23,6 +23,17 @@ def parse_action(action: str) -> tuple[str, list[str]]:
     return m.group(1), m.group(2).split(",")
 
 
+def held_block(state) -> str | None:
+    """The block named by ``is_holding(r,bK)`` in a symbolic state (None: none is held)."""
+    for atom in state:
+        name, _, rest = atom.replace(" ", "").partition("(")
+        if name == "is_holding":
+            args = rest.rstrip(")").split(",")
+            if len(args) == 2 and _BLOCK.fullmatch(args[1]):
+                return args[1]
+    return None
+
+
 def block_index(spec, name: str) -> int:
     """Row of block ``bK`` among the blocks (K - 1); ValueError unless 1 <= K <= spec.n_blocks."""
     if not _BLOCK.fullmatch(name) or not 1 <= int(name[1:]) <= spec.n_blocks:

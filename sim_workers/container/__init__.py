@@ -7,6 +7,7 @@ import re
 import numpy as np
 
 from ..base import PhysicsDomain
+from ..blocks.terms import held_block
 from ..configuration import Configuration
 from ..scene import SceneDescription
 from ..obstacles import Box, body_box, cube_box, hand_boxes, per_block
@@ -198,6 +199,10 @@ class ContainerDomain(PhysicsDomain):
 
     t_star_probe_jobs = staticmethod(probes.t_star_probe_jobs)
     t_star_from_probes = staticmethod(probes.true_T_from_probes)
+
+    @staticmethod
+    def held_object(state: frozenset[str]) -> str | None:
+        return held_block(state)
 
     def check_action(self, action: str) -> None:
         name, args = state_mapping.parse_action(action)

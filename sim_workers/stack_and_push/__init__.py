@@ -8,6 +8,7 @@ import dataclasses
 import numpy as np
 
 from ..base import PhysicsDomain
+from ..blocks.terms import held_block
 from ..configuration import Configuration, Workspace
 from ..scene import SceneDescription
 from ..blocks.scene import GRIPPER_MASS
@@ -329,6 +330,10 @@ class StackAndPushDomain(PhysicsDomain):
                  for h in range(n_blocks)]
         push = [successes[(kind + "push", k)] / trials for k in range(1, n_blocks + 1)]
         return {"pickup": float(p_pickup), "stack": stack, "push": [float(p) for p in push]}
+
+    @staticmethod
+    def held_object(state: frozenset[str]) -> str | None:
+        return held_block(state)
 
     def check_action(self, action: str) -> None:
         name, args = state_mapping.parse_action(action)

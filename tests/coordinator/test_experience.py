@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from coordinator.experience import ExperiencePool, Transition
+from planner.container import TASK
 
 S = frozenset({"is_in(b1,init)", "hand_empty(r)", "is_in(c,init)"})
 HOLD = frozenset({"is_holding(r,b1)", "is_in(c,init)"})
@@ -15,19 +16,19 @@ A = "pickup(r,b1,init)"
 
 
 def test_add_real_and_transition_fields():
-    pool = ExperiencePool()
+    pool = ExperiencePool(TASK.context_of)
     pool.add_real(S, A, HOLD, HOLD)
     pool.add_real(S, A, MISS, HOLD)
     ts = list(pool)
     assert len(pool) == 2 and pool.n_real == 2
     assert ts[0] == Transition(S, A, HOLD, HOLD, 1.0, "real")
     assert ts[0].success and not ts[1].success
-    assert ts[0].context == ("pickup", 0)
+    assert ts[0].context_under(TASK.context_of) == ("pickup", 0)
     assert pool.counts() == {"real": {("pickup", 0): (1.0, 2.0)}, "sim": {}}
 
 
 def test_add_simulated_aggregates_per_outcome():
-    pool = ExperiencePool()
+    pool = ExperiencePool(TASK.context_of)
     next_states = [HOLD, MISS, HOLD, HOLD, MISS]
     w = np.array([0.1, 0.2, 0.3, 0.1, 0.3])
     pool.add_simulated(S, A, next_states, HOLD, w)
@@ -38,7 +39,7 @@ def test_add_simulated_aggregates_per_outcome():
     s, n = pool.counts()["sim"][("pickup", 0)]
     assert s == pytest.approx(0.5) and n == pytest.approx(1.0)
     # Unnormalised weights are normalised (one action = one unit); zero weights dropped.
-    pool2 = ExperiencePool()
+    pool2 = ExperiencePool(TASK.context_of)
     pool2.add_simulated(S, A, [HOLD, MISS, MISS], HOLD, np.array([3.0, 1.0, 0.0]))
     assert pool2.counts()["sim"][("pickup", 0)] == pytest.approx((0.75, 1.0))
     with pytest.raises(ValueError, match="weights"):
@@ -48,7 +49,7 @@ def test_add_simulated_aggregates_per_outcome():
 
 
 def test_memory_bounded_when_outcomes_repeat():
-    pool = ExperiencePool()
+    pool = ExperiencePool(TASK.context_of)
     rng = np.random.default_rng(0)
     n = 200
     for _ in range(2000):
@@ -62,7 +63,7 @@ def test_memory_bounded_when_outcomes_repeat():
 
 
 def test_counts_skip_unlearned_and_split_by_context():
-    pool = ExperiencePool()
+    pool = ExperiencePool(TASK.context_of)
     two = frozenset({"at_container(b1,c)", "at_container(b2,c)", "is_in(c,init)", "hand_empty(r)"})
     at_goal = two - {"is_in(c,init)"} | {"is_in(c,goal)"}
     pool.add_real(two, "push(r,c,init,goal)", at_goal, at_goal)
@@ -73,13 +74,13 @@ def test_counts_skip_unlearned_and_split_by_context():
 
 
 def test_round_trip_exact():
-    pool = ExperiencePool()
+    pool = ExperiencePool(TASK.context_of)
     rng = np.random.default_rng(3)
     for i in range(20):
         pool.add_real(S, A, HOLD if i % 3 else MISS, HOLD)
         pool.add_simulated(S, A, [HOLD, MISS, HOLD], HOLD, rng.random(3) + 0.01)
     text = json.dumps(pool.to_dict(), allow_nan=False)
-    back = ExperiencePool.from_dict(json.loads(text))
+    back = ExperiencePool.from_dict(json.loads(text), TASK.context_of)
     assert list(back) == list(pool)
     assert back.counts() == pool.counts()
     assert back.to_dict() == pool.to_dict()

@@ -85,7 +85,7 @@ def test_true_T_is_estimated_once_and_cached(tmp_path):
 
     def fake_probes(params):
         calls.append(params)
-        jobs = ex.probe_jobs(params["n_blocks"])
+        jobs = ex.probe_jobs(params["n_blocks"], "container")
         # pickup always; stacks reach height 6 of 8 in 3 of 4 trials; pushes fail from 6 up.
         return [{("pickup", 1): 4}.get((a, k), 4 if a == "push" and k < 6 else 0 if a == "push"
                                        else (4 if k < 6 else 3)) for a, k in jobs]
@@ -97,7 +97,7 @@ def test_true_T_is_estimated_once_and_cached(tmp_path):
     assert rec["transition"]["push"] == [1, 1, 1, 1, 1, 0, 0, 0]
     again, cached = ex.true_transition(tmp_path, params, executor=fake_probes)
     assert cached and len(calls) == 1 and again == rec
-    opt = ex.Optimality(rec["transition"], None, 8)
+    opt = ex.Optimality(rec["transition"], None, 8, "container")
     assert sorted(opt.best_loads) in ([3, 5], [4, 4]) and opt([5, 3]) and not opt([8])
     # Other probe settings are not the cached ones: estimated anew.
     ex.true_transition(tmp_path, {**params, "trials": 5}, executor=fake_probes)
@@ -225,7 +225,7 @@ def test_resume_continues_a_partial_run_from_its_checkpoint(ray_cluster, tmp_pat
 
     config = RunConfig(**run["config"])
     checkpoints = []
-    pool = ShardPool(n_shards=0)
+    pool = ShardPool("container", n_shards=0)
     try:
         run_task(config.model_copy(update={"episodes": 1}), pool=pool,
                  on_episode=lambda rec, s, c: checkpoints.append(c))

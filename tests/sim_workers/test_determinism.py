@@ -170,8 +170,8 @@ def _concat(parts: list[dict]) -> dict:
 def test_shard_size_and_batch_split_do_not_matter():
     config, traj, t0 = _case(PICKUP)
     start = config.to_array()
-    one = Shard(n_worlds=1)
-    three = Shard(n_worlds=3)
+    one = Shard("container", n_worlds=1)
+    three = Shard("container", n_worlds=3)
     try:
         whole = one.simulate(start, SIZES, PICKUP, traj, t0)
         split = _concat([three.simulate(start, SIZES[:1], PICKUP, traj, t0),
@@ -195,7 +195,7 @@ def test_two_ray_actors_match_the_in_process_shard(ray_cluster):
     ray = ray_cluster
     config, traj, t0 = _case(PUSH)
     start = config.to_array()
-    local = Shard(n_worlds=2)
+    local = Shard("container", n_worlds=2)
     try:
         expected = local.simulate(start, SIZES, PUSH, traj, t0)
     finally:

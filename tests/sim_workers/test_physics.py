@@ -31,7 +31,7 @@ TRUE = 0.045
 
 # -- the four claims, as rates --------------------------------------------------------------
 def test_pickup_with_true_size_succeeds():
-    r = probe("pickup", TRUE, trials=20, seed=11)
+    r = probe("pickup", TRUE, trials=20, seed=11, domain="container")
     assert r.trials == 20
     assert r.success_rate >= 0.9, r.to_dict()
 
@@ -40,28 +40,28 @@ def test_pickup_with_true_size_succeeds():
                          ids=["30pc_smaller", "25pc_smaller", "25pc_larger", "30pc_larger"])
 def test_pickup_with_wrong_believed_size_fails_in_at_least_half(factor):
     believed = factor * TRUE
-    r = probe("pickup", TRUE, believed, trials=16, seed=12)
+    r = probe("pickup", TRUE, believed, trials=16, seed=12, domain="container")
     assert r.believed_size == believed and r.true_size == TRUE
     assert 1 - r.success_rate >= 0.5, r.to_dict()
 
 
 @pytest.mark.slow
 def test_stacking_first_four_blocks_with_true_sizes():
-    r = probe("stack", TRUE, load_k=4, trials=12, seed=13)
+    r = probe("stack", TRUE, load_k=4, trials=12, seed=13, domain="container")
     assert r.success_rate >= 0.9, r.to_dict()
 
 
 @pytest.mark.slow
 def test_push_loses_blocks_more_often_with_a_heavier_load():
-    light = probe("push", TRUE, load_k=2, trials=20, seed=14)
-    heavy = probe("push", TRUE, load_k=8, trials=20, seed=14)
+    light = probe("push", TRUE, load_k=2, trials=20, seed=14, domain="container")
+    heavy = probe("push", TRUE, load_k=8, trials=20, seed=14, domain="container")
     assert light.success_rate >= 0.9, light.to_dict()
     assert light.success_rate - heavy.success_rate >= 0.25, (light.to_dict(), heavy.to_dict())
 
 
 def test_probe_is_reproducible_from_its_seed():
-    a = probe("pickup", TRUE, 0.040, trials=3, seed=5)
-    b = probe("pickup", TRUE, 0.040, trials=3, seed=5)
+    a = probe("pickup", TRUE, 0.040, trials=3, seed=5, domain="container")
+    b = probe("pickup", TRUE, 0.040, trials=3, seed=5, domain="container")
     assert a == b
 
 

@@ -121,7 +121,7 @@ def test_a_shard_refuses_a_bad_particle_by_field():
     traj = domain.action_trajectory(config, action, key)
     sizes = np.full((3, N), 0.045)
     sizes[1, 4] = np.nan
-    shard = Shard()
+    shard = Shard("container")
     try:
         with pytest.raises(PropertyError, match=r"block_sizes\[4\]"):
             shard.simulate(config.to_array(), sizes, action, traj, float(traj[3, 0]))
