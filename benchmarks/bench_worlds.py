@@ -60,7 +60,7 @@ import pybullet as pb  # noqa: E402
 from sim_workers.domains import load  # noqa: E402
 from sim_workers.configuration import Configuration  # noqa: E402
 from sim_workers.grounded_world import GroundedWorld  # noqa: E402
-from sim_workers.probe import loaded_configuration  # noqa: E402
+from sim_workers.container.probes import loaded_configuration  # noqa: E402
 from sim_workers.shard import Shard, remote_shard  # noqa: E402
 
 ACTIONS = ("pickup", "stack", "push")

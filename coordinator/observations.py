@@ -13,10 +13,6 @@ from sim_workers.configuration import Configuration
 from .domains import measurement_channels
 from .reality import Observation
 
-# Channels read from the sensors during an action (issue 14), last in a domain's vector.
-SENSED_CHANNELS = ("held_weight", "grasp_width")
-
-
 class ObservationError(ValueError):
     """The observation does not fit the scene; `field` names the offending part."""
 
@@ -80,7 +76,8 @@ def _measurements(physics, config: Configuration, values: list | None) -> np.nda
     meas = np.array([np.nan if v is None else v for v in values], dtype=float)
     # Channels a robot does not report at the end (e.g. a client written before the held
     # weight and grasp width existed) are not measured: NaN, never a guess.
-    n_sensed = sum(1 for c in measurement_channels(physics) if c["name"] in SENSED_CHANNELS)
+    # (channels read from the sensors during an action, issue 14: last in the vector)
+    n_sensed = sum(1 for c in measurement_channels(physics) if c.get("sensed"))
     if derived.size - n_sensed <= meas.size < derived.size:
         meas = np.concatenate([meas, np.full(derived.size - meas.size, np.nan)])
     if meas.shape != derived.shape:
@@ -90,4 +87,4 @@ def _measurements(physics, config: Configuration, values: list | None) -> np.nda
     return meas
 
 
-__all__ = ["ObservationError", "SENSED_CHANNELS", "from_canonical", "parse_observation"]
+__all__ = ["ObservationError", "from_canonical", "parse_observation"]

@@ -207,8 +207,10 @@ class PhysicsDomain(abc.ABC):
         """(indices, std) of the measurements the belief's likelihood weighs."""
 
     def measurement_channels(self) -> list[dict]:
-        """Every channel: name, index, unit and sigma (None: reported, not weighed);
-        default: the weighed ones, named ``channel_<i>``."""
+        """Every channel: name, index, unit and sigma (None: reported, not weighed), and
+        ``sensed: True`` for a channel read from the action's sensor log (last in the
+        vector; a robot that does not report it is not measured there); default: the
+        weighed ones, named ``channel_<i>``."""
         idx, sigma = self.measurement_model()
         return [{"name": f"channel_{int(i)}", "index": int(i), "unit": "", "sigma": float(s)}
                 for i, s in zip(idx, sigma)]

@@ -11,7 +11,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .configuration import Configuration
 from .domains import load
 from .grounded_world import act  # noqa: F401  (re-exported for the domains' probes)
 # The jitter lives with the reality gap; re-exported here for existing callers.
@@ -36,13 +35,6 @@ class ProbeResult:
 
     def to_dict(self) -> dict:
         return {**dataclasses.asdict(self), "success_rate": self.success_rate}
-
-
-def loaded_configuration(domain, sizes: np.ndarray, load_k: int, rng: np.random.Generator) -> Configuration:
-    """The container's probe start for a push: kept here for its callers (tests, benchmarks)."""
-    from .container.probes import loaded_configuration as container_loaded
-
-    return container_loaded(domain, sizes, load_k, rng)
 
 
 def probe_actions(domain_name: str) -> tuple[str, ...]:

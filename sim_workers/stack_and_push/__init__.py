@@ -272,9 +272,10 @@ class StackAndPushDomain(PhysicsDomain):
         return ([{"name": "finger_opening", "index": 0, "unit": "m", "sigma": 0.002}]
                 + [{"name": f"{b}_{ax}", "index": 1 + 2 * i + k, "unit": "m", "sigma": None}
                    for i, b in enumerate(self.block_names) for k, ax in enumerate("xy")]
-                + [{"name": "held_weight", "index": 1 + 2 * n, "unit": "N", "sigma": self.force_sigma},
+                + [{"name": "held_weight", "index": 1 + 2 * n, "unit": "N", "sigma": self.force_sigma,
+                    "sensed": True},
                    {"name": "grasp_width", "index": 2 + 2 * n, "unit": "m",
-                    "sigma": 0.002 if self.logs_sensors else None}])
+                    "sigma": 0.002 if self.logs_sensors else None, "sensed": True}])
 
     @property
     def force_sigma(self) -> float | None:

@@ -104,3 +104,18 @@ def test_a_domain_importing_another_domain_breaks_the_contract(tree_copy, tmp_pa
     code, out, _ = _lint(root, str(root))
     assert code == 1 and "a domain imports no other domain BROKEN" in out, out
     assert f"{CONTRACT} KEPT" in out, out
+
+
+@pytest.mark.parametrize("module, added", [
+    ("coordinator/session.py", "from planner.container import TASK"),
+    ("sim_workers/probe.py", "from sim_workers.container import probes"),
+])
+def test_the_service_importing_a_domain_breaks_the_contract(tree_copy, tmp_path, module, added):
+    """The loop, the API and the generic physics reach a domain only through the
+    registry (issue 26): an import of one is reported."""
+    root = tmp_path / "tree"
+    shutil.copytree(tree_copy, root)
+    path = root / module
+    path.write_text(path.read_text() + f"\n{added}  # a domain in the core\n")
+    code, out, _ = _lint(root, str(root))
+    assert code == 1 and "the service imports no domain BROKEN" in out, out

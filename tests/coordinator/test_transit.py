@@ -12,7 +12,7 @@ from coordinator.transit import plan_pre_pose_transit, transit_checker
 from planner.motion import box_checker, interpolate_config
 from sim_workers.configuration import Configuration, quat_from_yaw
 from sim_workers.grounded_world import GroundedWorld
-from sim_workers.probe import loaded_configuration
+from sim_workers.container.probes import loaded_configuration
 from sim_workers.stack_and_push.probes import tower_configuration
 
 

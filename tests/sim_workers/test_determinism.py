@@ -17,7 +17,7 @@ import pytest
 
 from sim_workers.domains import load
 from sim_workers.grounded_world import GroundedWorld
-from sim_workers.probe import loaded_configuration
+from sim_workers.container.probes import loaded_configuration
 from sim_workers.shard import Shard, decode_state, remote_shard
 
 N = 8
