@@ -159,7 +159,7 @@ class SessionManager:
         s = live.session
         if s.belief is None:
             return fn()
-        with (self.shard_pools.lease(s.config.domain, s.n_blocks, s.config.options) as pool,
+        with (self.shard_pools.lease(s.config.scene) as pool,
               s.using_shard_pool(pool)):
             return fn()
 

@@ -172,7 +172,7 @@ class TaskWorker:
             self.beat()
             return task_id in self._cancel or self._stopping.is_set() or budget.over()
 
-        lease = (self.shard_pools.lease(config.domain, config.n_blocks, config.options) if learns
+        lease = (self.shard_pools.lease(config.scene) if learns
                  else nullcontext())
         try:
             with lease as pool:

@@ -7,7 +7,7 @@ import numpy as np
 from pydantic import AfterValidator, BaseModel, ConfigDict, Field, model_validator
 
 from planner.blocks.model import DEFAULT_COSTS
-from sim_workers.domains import DEFAULT_DOMAIN
+from sim_workers.domains import DEFAULT_DOMAIN, Scene
 
 from .agents import AGENTS
 
@@ -180,6 +180,11 @@ class RunConfig(BaseModel):
             except PropertyError as exc:
                 raise ValueError(f"truth.{exc}") from None
         return self
+
+    @property
+    def scene(self) -> Scene:
+        """The run's scene as one value (domain, block count, options)."""
+        return Scene.of(self.domain, self.n_blocks, self.options)
 
     def truth_values(self) -> dict[str, float]:
         """The hidden truth by name (size from `true_size`; the rest as given)."""

@@ -103,7 +103,7 @@ def run(config: RunConfig, *, ray_address: str | None = None,
     if session.agent.learn_belief:
         if pool is None:
             own_pools = ShardPools(ray_address, config.shards, max_pools=1, own_ray_thread=False)
-            pool = own_pools.acquire(config.domain, config.n_blocks, config.options)
+            pool = own_pools.acquire(config.scene)
         session.shard_pool = _Tallied(pool, tally)
     else:
         pool = None

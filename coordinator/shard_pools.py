@@ -8,7 +8,7 @@ pairs the two. A process that runs one task (``tmoc run``, one run of an experim
 the same class with ``max_pools=1``::
 
     with ShardPools(n_shards=0, max_pools=1, own_ray_thread=False) as shard_pools:
-        with shard_pools.lease("container", 4) as pool:
+        with shard_pools.lease(Scene.of("container", 4)) as pool:
             pool.simulate(...)
 
 "Shard pool" here: the simulation actors; not the experience pool of a session.
@@ -20,6 +20,8 @@ import threading
 import time
 from contextlib import contextmanager
 from typing import Iterator
+
+from sim_workers.domains import Scene
 
 from .fanout import ShardPool, init_ray
 
@@ -45,7 +47,7 @@ class ShardPools:
         self.max_pools = max_pools
         self.own_ray_thread = own_ray_thread
         self._cond = threading.Condition()
-        self._pools: dict[tuple, ShardPool] = {}
+        self._pools: dict[Scene, ShardPool] = {}
         self._users: dict[tuple, int] = {}
         self._last_used: dict[tuple, float] = {}
         self._ray_lock = threading.Lock()
@@ -112,13 +114,14 @@ class ShardPools:
 
     # -- the pools -------------------------------------------------------------------------
     @staticmethod
-    def _key(domain: str, n_blocks: int, options: dict | None) -> tuple:
-        return (domain, int(n_blocks), tuple(sorted((options or {}).items())))
+    def _key(scene: Scene | str, n_blocks: int | None = None, options: dict | None = None) -> Scene:
+        """The scene (a ``Scene``, or the loose domain, block count and options)."""
+        return scene if isinstance(scene, Scene) else Scene.of(scene, n_blocks, options)
 
-    def acquire(self, domain: str, n_blocks: int, options: dict | None = None) -> ShardPool:
+    def acquire(self, scene: Scene | str, n_blocks: int | None = None, options: dict | None = None) -> ShardPool:
         """The shared pool of this scene (created if needed; one per domain, block count
         and domain options, since the options reach every world); pair with release()."""
-        key = self._key(domain, n_blocks, options)
+        key = self._key(scene, n_blocks, options)
         self.ensure_ray()
         with self._cond:
             while key not in self._pools and len(self._pools) >= self.max_pools:
@@ -131,7 +134,7 @@ class ShardPools:
                     self._cond.wait(timeout=1.0)
             fresh = key not in self._pools
             if fresh:
-                self._pools[key] = ShardPool(domain, {"n_blocks": int(n_blocks), **(options or {})},
+                self._pools[key] = ShardPool(key.domain, key.physics_options(),
                                              self.n_shards, num_cpus=1.0 / self.max_pools)
                 self._users[key] = 0
             self._users[key] += 1
@@ -143,16 +146,16 @@ class ShardPools:
             try:
                 added = pool.refresh()
             except Exception:
-                self.release(domain, n_blocks, options)
+                self.release(key)
                 raise
             if added:
                 log.info("pool %s: %d shards added (cluster grew), %d in all", key, added,
                          len(pool.actors))
         return pool
 
-    def release(self, domain: str, n_blocks: int, options: dict | None = None) -> None:
+    def release(self, scene: Scene | str, n_blocks: int | None = None, options: dict | None = None) -> None:
         """Hand back a pool from acquire() (it stays cached until evicted or close())."""
-        key = self._key(domain, n_blocks, options)
+        key = self._key(scene, n_blocks, options)
         with self._cond:
             if key in self._users:
                 self._users[key] = max(0, self._users[key] - 1)
@@ -160,13 +163,15 @@ class ShardPools:
             self._cond.notify_all()
 
     @contextmanager
-    def lease(self, domain: str, n_blocks: int, options: dict | None = None) -> Iterator[ShardPool]:
+    def lease(self, scene: Scene | str, n_blocks: int | None = None,
+              options: dict | None = None) -> Iterator[ShardPool]:
         """acquire() for the duration of a with block."""
-        pool = self.acquire(domain, n_blocks, options)
+        key = self._key(scene, n_blocks, options)
+        pool = self.acquire(key)
         try:
             yield pool
         finally:
-            self.release(domain, n_blocks, options)
+            self.release(key)
 
     def __enter__(self) -> "ShardPools":
         return self

@@ -64,6 +64,33 @@ class DomainSpec:
         return f"{self.name}-v{self.version}"
 
 
+@dataclass(frozen=True)
+class Scene:
+    """One scene of a domain as a value: the domain, its object count and its options
+    (sorted, so that equal scenes are equal and hash alike: a pool of worlds is shared per
+    scene). ``Scene.of`` builds one from the loose values."""
+
+    domain: str
+    n_blocks: int
+    options: tuple[tuple[str, Any], ...] = ()
+
+    @classmethod
+    def of(cls, domain: str, n_blocks: int, options: Mapping | None = None) -> "Scene":
+        return cls(str(domain), int(n_blocks), tuple(sorted(dict(options or {}).items())))
+
+    @property
+    def option_dict(self) -> dict:
+        return dict(self.options)
+
+    def physics_options(self) -> dict:
+        """What the physics half is built with: the object count and the options."""
+        return {"n_blocks": self.n_blocks, **self.option_dict}
+
+    def physics(self) -> "PhysicsDomain":
+        """The physics half of this scene."""
+        return load(self.domain, **self.physics_options())
+
+
 BUILTIN: dict[str, DomainSpec] = {
     "container": DomainSpec(
         "container", "sim_workers.container:ContainerDomain", "planner.container:ContainerTask",

@@ -49,7 +49,7 @@ def _run_remote():
         # The run's particles stay in this task's process (n_shards=0): the experiment
         # spreads runs, not particles, over the cluster. Ray is already up in a task.
         with ShardPools(n_shards=0, max_pools=1, own_ray_thread=False) as shard_pools:
-            pool = (shard_pools.acquire(cfg.domain, cfg.n_blocks, cfg.options)
+            pool = (shard_pools.acquire(cfg.scene)
                     if agent_spec(cfg.agent).learn_belief else None)
             return run(cfg, pool=pool, on_episode=on_episode, resume=resume)
 

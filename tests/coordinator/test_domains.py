@@ -256,3 +256,17 @@ def test_a_plugin_version_must_be_a_positive_integer():
     for bad in (0, -1, "2", 1.5, True):
         with pytest.raises(ValueError, match="version"):
             _version(bad, "x")
+
+
+def test_a_scene_is_one_value():
+    """(domain, object count, options) travel as one hashable value: equal scenes share a
+    pool of worlds whatever the options' order (issue 26)."""
+    from coordinator.run_config import RunConfig
+    from sim_workers.domains import Scene
+
+    a = Scene.of("stack_and_push", 4, {"unknown_density": True, "force_sigma": 0.5})
+    b = Scene.of("stack_and_push", 4, {"force_sigma": 0.5, "unknown_density": True})
+    assert a == b and hash(a) == hash(b) and len({a, b, Scene.of("stack_and_push", 5)}) == 2
+    assert a.physics().L.names == ("size", "density") and a.physics().n_blocks == 4
+    config = RunConfig(domain="stack_and_push", n_blocks=4, options={"unknown_density": True, "force_sigma": 0.5})
+    assert config.scene == a
