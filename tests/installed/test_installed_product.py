@@ -295,6 +295,7 @@ def test_the_plugin_is_found_through_its_entry_point(with_plugin):
     assert {"container", "toy_tray"} <= set(found)
     toy = found["toy_tray"]
     assert toy["source"] == "plugin (tmoc-toy-domain)" and toy["utility"]["pickup"] == 10.0
+    assert toy["version"] == 1 and toy["id"] == "toy_tray-v1"
     assert toy["physics"] == "tmoc_toy_domain.physics:ToyTrayPhysics"
 
 

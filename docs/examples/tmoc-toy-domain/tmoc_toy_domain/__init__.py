@@ -8,4 +8,5 @@ DOMAIN = {
     "physics": "tmoc_toy_domain.physics:ToyTrayPhysics",
     "task": "tmoc_toy_domain.task:ToyTrayTask",
     "description": "example plugin: four blocks, a short tray run and cheaper actions",
+    "version": 1,            # optional, default 1
 }

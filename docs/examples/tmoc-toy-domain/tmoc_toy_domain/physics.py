@@ -2,8 +2,9 @@
 
 This example builds on the container domain's scene code and changes its data: four
 blocks, a tray that travels 0.45 m instead of 0.6 m, a gentler push. A new scene would
-implement the same methods (see sim_workers/domains.py's Domain protocol) with its own
-pybullet bodies; everything else in the service stays as it is.
+subclass sim_workers.base.PhysicsDomain (the protocol: abstract members required, the rest
+defaulted) and declare its own scene as data; everything else in the service stays as it
+is.
 """
 from __future__ import annotations
 
