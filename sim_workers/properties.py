@@ -127,12 +127,28 @@ class PropertySpace:
 BLOCK_PROPERTY_NAMES = ("block_sizes", "density", "block_masses")
 
 
+class ValidatedProperties(dict):
+    """Properties ``block_properties`` has checked for `n_blocks` objects: validated once,
+    they pass through it again as they are (a particle-action hands them to place, build
+    and Y, each of which validates what it is given)."""
+
+    def __init__(self, values: dict, n_blocks: int) -> None:
+        super().__init__(values)
+        self.n_blocks = int(n_blocks)
+
+    def __reduce__(self):
+        return (ValidatedProperties, (dict(self), self.n_blocks))
+
+
 def block_properties(props: Mapping, n_blocks: int, default_density: float) -> dict:
     """Validated {block_sizes (n,), density, block_masses (n,)} from a property mapping.
 
     Every key either reaches the physics or is refused by name: an unknown key, or a
     `block_masses` that disagrees with `density` x `block_sizes`^3, raises PropertyError.
+    A mapping this returned is returned as it is.
     """
+    if type(props) is ValidatedProperties and props.n_blocks == n_blocks:
+        return props
     if "block_sizes" not in props:
         raise PropertyError("block_sizes: missing")
     unknown = sorted(str(k) for k in props if k not in BLOCK_PROPERTY_NAMES)
@@ -150,4 +166,4 @@ def block_properties(props: Mapping, n_blocks: int, default_density: float) -> d
         if not agrees:
             raise PropertyError("block_masses: derived from density x block_sizes^3; "
                                 "set density instead")
-    return {"block_sizes": sizes, "density": density, "block_masses": masses}
+    return ValidatedProperties({"block_sizes": sizes, "density": density, "block_masses": masses}, n_blocks)

@@ -168,3 +168,24 @@ def test_a_density_other_than_the_default_reaches_the_bodies(density):
 def test_a_property_that_would_not_reach_the_physics_is_refused_by_name(props, named):
     with pytest.raises(PropertyError, match=named):
         load("container").properties(props)
+
+
+@pytest.mark.parametrize("name", ["container", "stack_and_push"])
+def test_properties_are_validated_once_per_particle_action(name, monkeypatch):
+    """The hot path checks a particle's properties once (issue 26): place, build and Y are
+    handed the validated mapping, which passes through the check as it is."""
+    import sim_workers.properties as properties
+
+    shard = Shard(name)
+    d = shard.domain
+    truth = d.true_properties()
+    config = d.initial_configuration(truth)
+    action = "pickup(r,b1,init)"
+    key = d.action_pose(truth, config, action)
+    traj, t0 = d.action_trajectory(config, action, key), d.transit_end_time(config, action, key)
+    checks = []
+    real = properties.validate_sizes
+    monkeypatch.setattr(properties, "validate_sizes", lambda *a, **k: checks.append(1) or real(*a, **k))
+    rows = np.full((3, 1), 0.045)
+    shard.simulate(config.to_array(), rows, action, traj, t0)
+    assert len(checks) == len(rows)
