@@ -159,13 +159,30 @@ def _option_value(key: str, value: Any, default: Any) -> Any:
 def check_options(name: str, options: dict, n_blocks: int | None = None) -> dict:
     """`options` for domain `name`, each one a scalar option the physics takes with a value
     of its type; ValueError naming ``options.KEY`` otherwise."""
-    base = load(name).physics
-    known = options_of(base)
-    # An unset option (default None) takes the type its field declares: `bool | None`
-    # takes true or false, `float | None` a number.
-    declared = {f.name: str(f.type) for f in dataclasses.fields(base.spec)} if known else {}
-    known = {k: (False if v is None and declared.get(k, "").startswith("bool") else v)
-             for k, v in known.items()}
+    return checked_options(name, options, n_blocks)[0]
+
+
+def _option_defaults(name: str) -> dict:
+    """The options of `name` with the type-giving defaults (built once per domain spec)."""
+    s = spec(name)
+    key = (s, physics_registry._REGISTRY.get(s.name))
+    if key not in _DEFAULTS:
+        base = load(name).physics
+        known = options_of(base)
+        # An unset option (default None) takes the type its field declares: `bool | None`
+        # takes true or false, `float | None` a number.
+        declared = {f.name: str(f.type) for f in dataclasses.fields(base.spec)} if known else {}
+        _DEFAULTS[key] = {k: (False if v is None and declared.get(k, "").startswith("bool") else v)
+                          for k, v in known.items()}
+    return _DEFAULTS[key]
+
+
+_DEFAULTS: dict = {}
+
+
+def checked_options(name: str, options: dict, n_blocks: int | None = None) -> tuple[dict, Any]:
+    """``check_options``, and the physics half built with them (one build)."""
+    known = _option_defaults(name)
     for key, value in list(options.items()):
         if key in _NOT_OPTIONS:
             raise ValueError(f"options.{key}: set {'n_blocks' if key == 'n_blocks' else 'truth.size (--true-size)'} instead")
@@ -174,7 +191,7 @@ def check_options(name: str, options: dict, n_blocks: int | None = None) -> dict
                              f"(options: {', '.join(sorted(known))})")
         options = {**options, key: _option_value(key, value, known[key])}
     try:
-        load(name, **({"n_blocks": n_blocks} if n_blocks else {}), **options)
+        physics = load(name, **({"n_blocks": n_blocks} if n_blocks else {}), **options).physics
     except (ValueError, TypeError) as exc:
         raise ValueError(f"options.{exc}") from None
-    return dict(options)
+    return dict(options), physics

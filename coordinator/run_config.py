@@ -141,9 +141,9 @@ class RunConfig(BaseModel):
 
     @model_validator(mode="after")
     def _truth_and_options_are_the_domains(self) -> "RunConfig":
-        from coordinator.domains import check_options, load, options_of
+        from coordinator.domains import checked_options, options_of
 
-        self.options = check_options(self.domain, dict(self.options), self.n_blocks)
+        self.options, phys = checked_options(self.domain, dict(self.options), self.n_blocks)
         if "size" in self.truth:
             size = self.truth["size"]
             if "true_size" in self.model_fields_set and size != self.true_size:
@@ -152,7 +152,6 @@ class RunConfig(BaseModel):
             if not low <= size <= high:
                 raise ValueError(f"truth.size: {size} m is outside [{low}, {high}] m")
             self.true_size = float(size)
-        phys = load(self.domain, n_blocks=self.n_blocks, **self.options).physics
         L = phys.L
         # A truth besides L's is a known property: an option of the physics (e.g. density).
         known = [n for n in self.truth if n not in L.names and n != "size"
@@ -162,11 +161,9 @@ class RunConfig(BaseModel):
             if name in self.options and self.options[name] != value:
                 raise ValueError(f"truth.{name}: {value} disagrees with options.{name} {self.options[name]}")
             try:
-                self.options = check_options(self.domain, {**self.options, name: value}, self.n_blocks)
+                self.options, phys = checked_options(self.domain, {**self.options, name: value}, self.n_blocks)
             except ValueError as exc:
                 raise ValueError(f"truth.{name}: {str(exc).split(': ', 2)[-1]}") from None
-        if known:
-            phys = load(self.domain, n_blocks=self.n_blocks, **self.options).physics
         for name in self.truth:
             if name not in L.names:
                 raise ValueError(f"truth.{name}: not a property of L for domain {self.domain!r} "

@@ -270,3 +270,16 @@ def test_a_scene_is_one_value():
     assert a.physics().L.names == ("size", "density") and a.physics().n_blocks == 4
     config = RunConfig(domain="stack_and_push", n_blocks=4, options={"unknown_density": True, "force_sigma": 0.5})
     assert config.scene == a
+
+
+def test_a_run_config_is_validated_with_one_build_of_the_domain(monkeypatch):
+    """Validating a spec builds its physics half once (it was 3 to 4 times; issue 26)."""
+    from coordinator.run_config import RunConfig
+
+    RunConfig(domain="stack_and_push")                       # the domain's option defaults, once
+    builds = []
+    real = physics_registry.load
+    monkeypatch.setattr(physics_registry, "load", lambda *a, **k: builds.append(a) or real(*a, **k))
+    RunConfig(domain="stack_and_push", n_blocks=4, options={"unknown_density": True},
+              truth={"size": 0.05, "density": 900.0})
+    assert len(builds) == 1
