@@ -283,3 +283,16 @@ def test_a_run_config_is_validated_with_one_build_of_the_domain(monkeypatch):
     RunConfig(domain="stack_and_push", n_blocks=4, options={"unknown_density": True},
               truth={"size": 0.05, "density": 900.0})
     assert len(builds) == 1
+
+
+def test_the_domain_guide_names_every_member_of_the_protocol():
+    """docs/DOMAINS.md documents each required and optional member of both bases."""
+    from pathlib import Path
+
+    from planner.domain import TaskDomain
+    from sim_workers.base import PhysicsDomain, optional_members, required_members
+
+    doc = (Path(__file__).resolve().parents[2] / "docs" / "DOMAINS.md").read_text()
+    missing = [m for base in (PhysicsDomain, TaskDomain) for m in required_members(base) + optional_members(base)
+               if f"`{m}" not in doc]
+    assert not missing, f"docs/DOMAINS.md does not name {missing}"
