@@ -7,13 +7,12 @@ reports each by name.
 """
 from __future__ import annotations
 
+import dataclasses
 import time
 from dataclasses import dataclass
 from typing import Callable
 
 import numpy as np
-
-import dataclasses
 
 from planner.domain import TaskDomain
 from sim_workers.base import PhysicsDomain, missing_members
