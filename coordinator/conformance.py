@@ -73,7 +73,7 @@ def check_scene(d: Domain) -> str:
     n_objects = len(d.physics.initial_configuration(truth).objects)
     assert len(desc.objects) == n_objects, f"{len(desc.objects)} objects declared, {n_objects} in a configuration"
     for b in desc.bodies:
-        assert b.shapes and all(min(s.half) > 0 for s in b.shapes), f"body {b.name}: a shape without extent"
+        assert b.shapes and all(s.extent() > 0 for s in b.shapes), f"body {b.name}: a shape without extent"
         assert b.mass >= 0 and b.friction >= 0, f"body {b.name}: negative mass or friction"
     assert pickle.loads(pickle.dumps(desc)) == desc, "the description does not survive pickling"
     return f"{len(desc.bodies)} bodies, {len(desc.objects)} objects"

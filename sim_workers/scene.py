@@ -23,13 +23,44 @@ class BoxShape:
     half: Vec3
     position: Vec3 = (0.0, 0.0, 0.0)
 
+    def extent(self) -> float:
+        return float(min(self.half))
+
+
+@dataclass(frozen=True)
+class CylinderShape:
+    """A cylinder along the body's z axis: radius and full height, centre in the body frame."""
+
+    radius: float
+    height: float
+    position: Vec3 = (0.0, 0.0, 0.0)
+
+    def extent(self) -> float:
+        return float(min(self.radius, self.height))
+
+
+@dataclass(frozen=True)
+class MeshShape:
+    """A convex mesh from a file a domain ships (Wavefront .obj), scaled per axis; centre
+    in the body frame. The engine takes the file's convex hull as the collision shape."""
+
+    path: str
+    scale: Vec3 = (1.0, 1.0, 1.0)
+    position: Vec3 = (0.0, 0.0, 0.0)
+
+    def extent(self) -> float:
+        return float(min(self.scale))
+
+
+Shape = BoxShape | CylinderShape | MeshShape
+
 
 @dataclass(frozen=True)
 class Body:
-    """A rigid body: one box, or a compound of several in one body. `mass` 0 is fixed."""
+    """A rigid body: one shape, or a compound of several in one body. `mass` 0 is fixed."""
 
     name: str
-    shapes: tuple[BoxShape, ...]
+    shapes: tuple[Shape, ...]
     mass: float
     position: Vec3                    # the base frame's position at build time
     friction: float                   # lateral (Coulomb) friction coefficient

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 import pybullet as pb
 
-from ..scene import Body, Gripper, SceneDescription
+from ..scene import Body, BoxShape, CylinderShape, Gripper, MeshShape, SceneDescription
 
 # The fingers' coupling (as pybullet's Panda example does): two independent position servos
 # squeezing one object drift sideways together and carry it off centre.
@@ -63,18 +63,44 @@ def box_shape(client: int, half) -> int:
     return pb.createCollisionShape(pb.GEOM_BOX, halfExtents=list(half), physicsClientId=client)
 
 
+def _one_shape(client: int, s) -> int:
+    """A shape at the body's origin."""
+    if isinstance(s, BoxShape):
+        return box_shape(client, s.half)
+    if isinstance(s, CylinderShape):
+        return pb.createCollisionShape(pb.GEOM_CYLINDER, radius=s.radius, height=s.height,
+                                       physicsClientId=client)
+    return pb.createCollisionShape(pb.GEOM_MESH, fileName=s.path, meshScale=list(s.scale),
+                                   physicsClientId=client)
+
+
 def build_body(client: int, body: Body) -> int:
     if len(body.shapes) == 1 and tuple(body.shapes[0].position) == (0.0, 0.0, 0.0):
-        shape = box_shape(client, body.shapes[0].half)
-    else:
+        shape = _one_shape(client, body.shapes[0])
+    elif all(isinstance(s, BoxShape) for s in body.shapes):
         shape = pb.createCollisionShapeArray(
             [pb.GEOM_BOX] * len(body.shapes), halfExtents=[list(s.half) for s in body.shapes],
             collisionFramePositions=[list(s.position) for s in body.shapes], physicsClientId=client)
+    else:
+        shape = _compound(client, body.shapes)
     extra = {"useMaximalCoordinates": True} if body.maximal_coordinates else {}
     mass = float(body.mass) if body.mass else 0
     uid = pb.createMultiBody(mass, shape, basePosition=list(body.position), **extra, physicsClientId=client)
     pb.changeDynamics(uid, -1, lateralFriction=body.friction, physicsClientId=client)
     return uid
+
+
+def _compound(client: int, shapes) -> int:
+    """Shapes of several kinds in one compound body."""
+    kinds = {BoxShape: pb.GEOM_BOX, CylinderShape: pb.GEOM_CYLINDER, MeshShape: pb.GEOM_MESH}
+    args = {"shapeTypes": [kinds[type(s)] for s in shapes],
+            "halfExtents": [list(s.half) if isinstance(s, BoxShape) else [0, 0, 0] for s in shapes],
+            "radii": [s.radius if isinstance(s, CylinderShape) else 0.0 for s in shapes],
+            "lengths": [s.height if isinstance(s, CylinderShape) else 0.0 for s in shapes],
+            "fileNames": [s.path if isinstance(s, MeshShape) else "" for s in shapes],
+            "meshScales": [list(s.scale) if isinstance(s, MeshShape) else [1, 1, 1] for s in shapes],
+            "collisionFramePositions": [list(s.position) for s in shapes]}
+    return pb.createCollisionShapeArray(physicsClientId=client, **args)
 
 
 def build_gripper(client: int, g: Gripper) -> tuple[int, tuple[int, int], int]:

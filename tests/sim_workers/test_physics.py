@@ -179,3 +179,36 @@ def test_the_scene_is_declared_as_data_and_follows_L(name):
     fixtures = [n for n in (x.name for x in a.bodies) if not n.startswith("b")]
     assert fixtures and all(a.body(n) == b.body(n) for n in fixtures)
     assert a.gripper == b.gripper and a.objects == b.objects
+
+
+def test_the_pybullet_backend_builds_cylinders_meshes_and_compounds(tmp_path):
+    """Non-block scenes (issue 26): a cylinder, a mesh a domain ships, and a compound of
+    both kinds build with the declared mass, friction and extent."""
+    from sim_workers.engines.pybullet_engine import build_scene
+    from sim_workers.scene import Body, BoxShape, CylinderShape, MeshShape, SceneDescription
+
+    obj = tmp_path / "cube.obj"
+    corners = [(x, y, z) for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)]
+    faces = [(1, 3, 4, 2), (5, 6, 8, 7), (1, 2, 6, 5), (3, 7, 8, 4), (1, 5, 7, 3), (2, 4, 8, 6)]
+    obj.write_text("".join(f"v {x} {y} {z}\n" for x, y, z in corners)
+                   + "".join("f " + " ".join(map(str, f)) + "\n" for f in faces))
+    gripper = load("container").scene_description(load("container").true_properties()).gripper
+    desc = SceneDescription(1 / 240, 50, (
+        Body("table", (BoxShape((2, 2, 0.05)),), 0, (0, 0, -0.05), 0.5),
+        Body("can", (CylinderShape(0.03, 0.12),), 0.4, (0.3, 0.0, 0.06), 0.7),
+        Body("rock", (MeshShape(str(obj), (0.02, 0.03, 0.04)),), 0.2, (0.5, 0.2, 0.04), 0.9),
+        Body("mug", (CylinderShape(0.04, 0.1), BoxShape((0.01, 0.02, 0.03), (0.05, 0, 0))), 0.3,
+             (0.6, -0.2, 0.05), 0.6)), ("can", "rock", "mug"), gripper)
+    client = pb.connect(pb.DIRECT)
+    try:
+        h = build_scene(client, desc)
+        for name, mass, mu, size in (("can", 0.4, 0.7, (0.06, 0.06, 0.12)), ("rock", 0.2, 0.9, (0.04, 0.06, 0.08))):
+            info = pb.getDynamicsInfo(h.bodies[name], -1, physicsClientId=client)
+            assert info[0] == pytest.approx(mass) and info[1] == pytest.approx(mu)
+            lo, hi = pb.getAABB(h.bodies[name], physicsClientId=client)
+            assert np.allclose(np.subtract(hi, lo), size, atol=0.01)
+        lo, hi = pb.getAABB(h.bodies["mug"], physicsClientId=client)
+        assert hi[0] - lo[0] == pytest.approx(0.04 + 0.06, abs=0.01)      # the handle sticks out
+        assert h.objects == tuple(h.bodies[n] for n in ("can", "rock", "mug"))
+    finally:
+        pb.disconnect(client)
