@@ -144,15 +144,12 @@ class Session:
 
     # -- particles -----------------------------------------------------------------------
     def particle_sizes(self) -> np.ndarray:
-        """(N, n_blocks) block sizes of every particle."""
-        return np.array([self._props(row)["block_sizes"] for row in self.belief.particles])
+        """(N, n_blocks) object sizes of every particle (the physics half's ``object_sizes``)."""
+        return np.array([self.domain.object_sizes(self._props(row)) for row in self.belief.particles])
 
     def _props(self, row: np.ndarray) -> dict:
-        """A row of L (or, for a size-only L, n_blocks sizes) as the domain's properties."""
-        row = np.asarray(row, dtype=np.float64)
-        if len(self.L.names) == 1:
-            return {"block_sizes": np.broadcast_to(row, (self.n_blocks,))}
-        return self.domain.props_from_row(row)
+        """A row of L as the domain's properties."""
+        return self.domain.props_from_row(np.asarray(row, dtype=np.float64))
 
     def believed_row(self) -> np.ndarray:
         """The belief's weighted mean row of L (the prior's mean without a belief)."""
@@ -161,7 +158,7 @@ class Session:
         return np.asarray(self.reweighting.marginals(self.belief)[0], dtype=np.float64)
 
     def believed_sizes(self) -> np.ndarray:
-        return np.array(self._props(self.believed_row())["block_sizes"], dtype=np.float64)
+        return np.array(self.domain.object_sizes(self._props(self.believed_row())), dtype=np.float64)
 
     # -- episode -------------------------------------------------------------------------
     def start_episode(self, observation: Observation) -> None:
@@ -203,7 +200,6 @@ class Session:
 
     def _real_pose(self, config: Configuration, action: str) -> tuple[np.ndarray, np.ndarray | None]:
         """Step 2 of the loop: the real pose x and (for TMOC) each particle's x_i."""
-        spec = self.domain.spec
         mode = self.agent.grasp
         if mode == "belief":
             poses = self._particle_poses(config, action)
@@ -217,7 +213,7 @@ class Session:
             return sub.weighted_mean(poses[keep], angular=(3,)), poses
         if mode == "random":
             if len(self.L.names) == 1:
-                s = self.rng.uniform(spec.prior_low, spec.prior_high, self.n_blocks)
+                s = self.rng.uniform(float(self.L.low[0]), float(self.L.high[0]), self.n_blocks)
             else:   # every property of every block drawn from its prior
                 low, high = self.L.bounds(self.n_blocks, True)
                 s = self.rng.uniform(low, high)

@@ -77,6 +77,12 @@ class PhysicsDomain(abc.ABC):
     def properties(self, props: dict) -> dict:
         """`props` validated and completed (PropertyError naming the field); idempotent."""
 
+    def object_sizes(self, props: dict) -> np.ndarray:
+        """Each object's size under these properties (``block_names`` order), as the
+        transit's collision model and the box of a held object take it; default: the
+        block worlds' ``block_sizes``."""
+        return np.asarray(props["block_sizes"], dtype=np.float64)
+
     def props_from_row(self, row: np.ndarray) -> dict:
         """A row of L (what the wire carries) as the properties a world is built from;
         default: one size for every object."""
