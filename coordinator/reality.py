@@ -76,7 +76,7 @@ class SimulatedReality:
         self._domain = None
         self._start: Configuration | None = None
         self._state: frozenset[str] = frozenset()
-        self._push_jitter, self._exec_rng = 0.0, None
+        self._exec_rng = None
 
     def start_episode(self, rng: np.random.Generator) -> Observation:
         domain = jittered_domain(rng, self.gap.friction, domain=self.domain_name, **self.options)
