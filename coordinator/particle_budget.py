@@ -31,6 +31,9 @@ from statistics import NormalDist
 import numpy as np
 
 
+KLD_MAX = float(2**62)        # a count no budget reaches; callers clip to their maximum
+
+
 def kld_count(k: int, epsilon: float = 0.05, quantile: float = 0.99) -> int:
     """Samples needed for a posterior occupying `k` bins (1 for k <= 1)."""
     if not epsilon > 0 or not 0.5 < quantile < 1:
@@ -39,7 +42,10 @@ def kld_count(k: int, epsilon: float = 0.05, quantile: float = 0.99) -> int:
         return 1
     z = NormalDist().inv_cdf(quantile)
     a = 2.0 / (9.0 * (k - 1))
-    return int(math.ceil((k - 1) / (2.0 * epsilon) * (1.0 - a + math.sqrt(a) * z) ** 3))
+    n = (k - 1) / (2.0 * epsilon) * (1.0 - a + math.sqrt(a) * z) ** 3
+    # An epsilon near 0 (any positive float is a valid request) asks for more particles than
+    # a float holds: that is "as many as allowed", never an overflow (found by schemathesis).
+    return int(math.ceil(min(n, KLD_MAX)))
 
 
 def occupied_bins(particles: np.ndarray, weights: np.ndarray, low: np.ndarray, width: np.ndarray) -> int:

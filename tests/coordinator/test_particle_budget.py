@@ -23,6 +23,17 @@ def test_kld_bound_matches_the_localisation_figures():
         kld_count(3, 0.0)
 
 
+def test_a_tiny_epsilon_asks_for_the_maximum_not_an_overflow():
+    """Any positive kld_epsilon is a valid request; 5e-324 made the bound infinite and the
+    task failed with an OverflowError (found by schemathesis over HTTP)."""
+    assert kld_count(5, 5e-324) == 2**62
+    rng = np.random.default_rng(0)
+    particles = rng.uniform(0.03, 0.06, (64, 1))
+    n = next_count(particles, np.full(64, 1 / 64), np.array([0.03]), np.array([0.06]),
+                   n_min=8, n_max=48, epsilon=5e-324)
+    assert n == 48
+
+
 def test_bins_are_per_property_in_its_own_scale():
     low, width = np.array([0.03, 300.0]), np.array([0.003, 270.0])
     same = np.array([[0.0401, 1000.0], [0.0405, 1100.0]])
