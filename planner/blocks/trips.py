@@ -13,6 +13,7 @@ Everything returned is plain Python data; a fresh ``clingo.Control`` is made per
 """
 from __future__ import annotations
 
+import numbers
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -21,7 +22,7 @@ from typing import Mapping, Sequence
 import clingo
 import numpy as np
 
-from planner.blocks.model import Model, PlanningError, attempt_cost, push_value, redo_costs
+from planner.blocks.model import Model, PlanningError, attempt_cost, is_number, push_value, redo_costs
 
 DEFAULT_TIME_LIMIT_S = 30.0
 # Weights are scaled by at most this much before rounding: the rounding error of a plan's
@@ -258,6 +259,23 @@ def optimise(problem: Problem, weights: Weights, last_trips: int,
             search.proven = False
             return search
         trips += 1
+
+
+def check_limits(max_steps, time_limit) -> None:
+    """PlanningError naming `max_steps` (an integer >= 0 or None) or `time_limit` (> 0 s)."""
+    if max_steps is not None and (isinstance(max_steps, bool) or
+                                  not isinstance(max_steps, numbers.Integral) or max_steps < 0):
+        raise PlanningError(f"max_steps: expected an integer >= 0, got {max_steps!r}")
+    if not is_number(time_limit) or not float(time_limit) > 0:
+        raise PlanningError(f"time_limit: expected seconds > 0, got {time_limit!r}")
+
+
+def search(problem: Problem, model: Model, classes: Mapping[str, str], last_trips: int,
+           deadline: float, encoding: Path) -> Search:
+    """The weights of `problem` under `model` (block classes numbered in name order) and
+    the clingo search over up to `last_trips` trips until `deadline`."""
+    class_ids = {name: i for i, name in enumerate(sorted(set(classes.values())), start=1)}
+    return optimise(problem, weights_for(problem, model, classes, class_ids), last_trips, deadline, encoding)
 
 
 # The names stack-and-push used before the toolkit was public (issue 26).

@@ -8,15 +8,14 @@ utility exactly (``planner.container.model``).
 """
 from __future__ import annotations
 
-import numbers
 import time
 from pathlib import Path
 from typing import Iterable, Mapping, Sequence
 
 import numpy as np
 
-from planner.blocks.model import Plan, PlanningError, classes_of, is_number, validate_transition
-from planner.blocks.trips import DEFAULT_TIME_LIMIT_S, Problem, optimise, weights_for
+from planner.blocks.model import Plan, PlanningError, classes_of, validate_transition
+from planner.blocks.trips import DEFAULT_TIME_LIMIT_S, Problem, check_limits, search
 from planner.container import symbolic
 from planner.container.model import _checked_state, _evaluate, optimistic_transition
 
@@ -89,11 +88,7 @@ def plan(state: Iterable[str], transition: Mapping, costs: Mapping | None = None
     blocks = symbolic.blocks(start)
     classes = classes_of(blocks, block_classes)
     model = validate_transition(transition, len(blocks), set(classes.values()), costs)
-    if max_steps is not None and (isinstance(max_steps, bool) or
-                                  not isinstance(max_steps, numbers.Integral) or max_steps < 0):
-        raise PlanningError(f"max_steps: expected an integer >= 0, got {max_steps!r}")
-    if not is_number(time_limit) or not float(time_limit) > 0:
-        raise PlanningError(f"time_limit: expected seconds > 0, got {time_limit!r}")
+    check_limits(max_steps, time_limit)
     problem = _problem(start)
     if problem.units == 0:
         return Plan((), (), 0.0, True, (time.perf_counter() - started) * 1e3)
@@ -105,14 +100,12 @@ def plan(state: Iterable[str], transition: Mapping, costs: Mapping | None = None
     if max_steps is not None:
         last_trips = min(last_trips, (max_steps - shortest) // 2 + 1)
 
-    class_ids = {name: i for i, name in enumerate(sorted(set(classes.values())), start=1)}
-    weights = weights_for(problem, model, classes, class_ids)
-    search = optimise(problem, weights, last_trips, started + float(time_limit), ENCODING)
-    actions = _name_actions(problem, search.best_steps)
+    found = search(problem, model, classes, last_trips, started + float(time_limit), ENCODING)
+    actions = _name_actions(problem, found.best_steps)
     value, loads, final = _evaluate(start, actions, model, classes)
     if not symbolic.is_goal(final):       # the encoding and symbolic.py disagree: a bug
         raise RuntimeError(f"internal error: planned actions do not reach the goal: {actions}")
-    return Plan(actions, loads, value, search.proven, (time.perf_counter() - started) * 1e3)
+    return Plan(actions, loads, value, found.proven, (time.perf_counter() - started) * 1e3)
 
 
 # --------------------------------------------------------------------------- GP baseline

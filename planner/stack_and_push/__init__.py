@@ -6,7 +6,6 @@ multi-shot driver). Its symbolic model (atoms, actions, checked states, the towe
 """
 from __future__ import annotations
 
-import numbers
 import time
 from pathlib import Path
 from typing import Iterable, Mapping, Sequence
@@ -125,11 +124,7 @@ def plan(state: Iterable[str], transition: Mapping, costs: Mapping | None = None
     started = time.perf_counter()
     start = _checked_state(state)
     classes, model = _model(start, transition, costs, block_classes)
-    if max_steps is not None and (isinstance(max_steps, bool) or
-                                  not isinstance(max_steps, numbers.Integral) or max_steps < 0):
-        raise PlanningError(f"max_steps: expected an integer >= 0, got {max_steps!r}")
-    if not tm.is_number(time_limit) or not float(time_limit) > 0:
-        raise PlanningError(f"time_limit: expected seconds > 0, got {time_limit!r}")
+    tp.check_limits(max_steps, time_limit)
     problem = _problem(start)
     if problem.units == 0:
         return Plan((), (), 0.0, True, (time.perf_counter() - started) * 1e3)
@@ -140,9 +135,7 @@ def plan(state: Iterable[str], transition: Mapping, costs: Mapping | None = None
     last_trips = problem.max_trips
     if max_steps is not None:
         last_trips = min(last_trips, max_steps - shortest + 1)
-    class_ids = {name: i for i, name in enumerate(sorted(set(classes.values())), start=1)}
-    weights = tp.weights_for(problem, model, classes, class_ids)
-    search = tp.optimise(problem, weights, last_trips, started + float(time_limit), ENCODING)
+    search = tp.search(problem, model, classes, last_trips, started + float(time_limit), ENCODING)
     actions = _name_actions(problem, search.best_steps)
     value, loads, final = _evaluate(start, actions, model, classes)
     if not is_goal(final):
