@@ -83,8 +83,12 @@ def _truth(d: Domain) -> dict:
     return d.physics.true_properties()
 
 
-def _sized(d: Domain, size: float) -> dict:
-    return {"block_sizes": np.full(d.n_blocks, float(size))}
+def _sized(d: Domain, value: float) -> dict:
+    """The hypothesis with L's first property at `value` (a size in the block worlds) and
+    every other at its default truth."""
+    row = np.array(d.physics.L.truth, dtype=np.float64)
+    row[0] = float(value)
+    return d.physics.props_from_row(row)
 
 
 def _prior(d: Domain) -> tuple[float, float]:
@@ -125,16 +129,18 @@ def check_place_keeps_state(d: Domain) -> str:
     for size in np.linspace(low, high, 5):
         placed = d.physics.place(config, _sized(d, size))
         got = d.physics.symbolic_state(placed)
-        assert got == state, f"place() at size {size:.4f} changes Y^-1: {sorted(got ^ state)}"
-    return "5 sizes across the prior"
+        assert got == state, f"place() at {d.physics.L.names[0]} {size:.4f} changes Y^-1: {sorted(got ^ state)}"
+    return f"5 values of {d.physics.L.names[0]} across the prior"
 
 
 def check_refused_properties(d: Domain) -> str:
     """Bad properties are refused with a message naming the field, before any change."""
-    low, high = _prior(d)
-    cases = [({"block_sizes": np.full(d.n_blocks, np.nan)}, "block_sizes"),
-             ({"block_sizes": np.full(d.n_blocks, high * 10)}, "block_sizes"),
-             ({"block_sizes": np.full(d.n_blocks, low), "weight": 1.0}, "weight")]
+    truth = _truth(d)
+    key = next(iter(truth))          # the first property (block_sizes in the block worlds)
+    value = np.asarray(truth[key], dtype=np.float64)
+    cases = [({**truth, key: np.full_like(value, np.nan)}, key),
+             ({**truth, key: value * 1000.0}, key),
+             ({**truth, "weight": 1.0}, "weight")]
     for props, field in cases:
         try:
             d.physics.properties(props)
@@ -182,8 +188,12 @@ def check_determinism(d: Domain, ray_actors: bool = True) -> str:
         key = d.physics.action_pose(props, config, action)
         traj = d.physics.action_trajectory(config, action, key)
         t0 = d.physics.transit_end_time(config, action, key)
-        sizes = np.asarray(props["block_sizes"], dtype=np.float64)[None, :]
-        outs = ray.get([x.simulate.remote(config.to_array(), sizes, action, traj, t0) for x in actors])
+        # The truth as the wire carries it: a row of L per particle.
+        if "block_sizes" in props:
+            rows = np.asarray(props["block_sizes"], dtype=np.float64)[None, :]
+        else:
+            rows = np.asarray(d.physics.L.truth, dtype=np.float64)[None, :]
+        outs = ray.get([x.simulate.remote(config.to_array(), rows, action, traj, t0) for x in actors])
         assert np.array_equal(outs[0]["configurations"], outs[1]["configurations"]), "two Ray actors differ"
         assert outs[0]["configurations"][0].tobytes() == first, "a Ray actor differs from in-process"
     finally:

@@ -4,7 +4,7 @@ from __future__ import annotations
 from typing import Annotated, Literal
 
 import numpy as np
-from pydantic import AfterValidator, BaseModel, ConfigDict, Field, model_validator
+from pydantic import AfterValidator, BaseModel, ConfigDict, Field, PrivateAttr, model_validator
 
 from planner.blocks.model import DEFAULT_COSTS
 from sim_workers.domains import DEFAULT_DOMAIN, Scene
@@ -138,6 +138,8 @@ class RunConfig(BaseModel):
     # Domain options (scalar fields of the domain's physics spec), e.g.
     # {"unknown_density": true, "force_sigma": 0.1}; they reach every world, real and particle.
     options: dict[str, bool | int | float | str | None] = Field(default_factory=dict)
+    # Whether the domain's L has a size (set by the validator; both built-ins do).
+    _size_in_L: bool = PrivateAttr(True)
 
     @model_validator(mode="after")
     def _truth_and_options_are_the_domains(self) -> "RunConfig":
@@ -153,6 +155,11 @@ class RunConfig(BaseModel):
                 raise ValueError(f"truth.size: {size} m is outside [{low}, {high}] m")
             self.true_size = float(size)
         L = phys.L
+        self._size_in_L = "size" in L.names
+        # (an explicit default is let through: stored and HTTP specs carry every field)
+        if not self._size_in_L and self.true_size != type(self).model_fields["true_size"].default:
+            raise ValueError(f"true_size: domain {self.domain!r} has no size in L "
+                             f"(properties: {', '.join(L.names)}); set truth instead")
         # A truth besides L's is a known property: an option of the physics (e.g. density).
         known = [n for n in self.truth if n not in L.names and n != "size"
                  and isinstance(options_of(phys).get(n), float)]
@@ -184,7 +191,10 @@ class RunConfig(BaseModel):
         return Scene.of(self.domain, self.n_blocks, self.options)
 
     def truth_values(self) -> dict[str, float]:
-        """The hidden truth by name (size from `true_size`; the rest as given)."""
+        """The hidden truth by name (size from `true_size` where L has a size; the rest as
+        given)."""
+        if not self._size_in_L:
+            return dict(self.truth)
         return {**self.truth, "size": float(self.true_size)}
 
     @model_validator(mode="after")

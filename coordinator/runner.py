@@ -17,7 +17,8 @@ from .shard_pools import ShardPools
 
 def reality_for(config: RunConfig, session: Session) -> SimulatedReality:
     """The simulated real world holding the hidden truth, with the run's domain options."""
-    if len(session.L.names) > 1:     # the truth is a row of L, built like a particle's
+    if len(session.L.names) > 1 or "size" not in session.L.names:
+        # the truth is a row of L, built like a particle's
         truth = session.domain.props_from_row(session.truth_row())
     else:
         truth = session.domain.true_properties(config.sizes_variation)
@@ -158,9 +159,10 @@ def result_record(config: RunConfig, session: Session, nodes: list[dict], wall_s
         "episodes": episodes,
         "summary": {
             "mean_utility": float(np.mean(utilities)) if utilities else None,
-            "final_size_mean": post["size_mean"],
-            "final_size_std": post["size_std"],
-            "true_size": config.true_size,
+            # (None for a domain whose L has no size: its figures are under "posterior")
+            "final_size_mean": post.get("size_mean"),
+            "final_size_std": post.get("size_std"),
+            "true_size": config.true_size if "size_mean" in post else None,
             "truth": config.truth_values(),
             "posterior": post["properties"],
             "transition": T.to_planner(),

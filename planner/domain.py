@@ -14,11 +14,34 @@ context index 0, else ``{name: [p for index in order]}``.
 from __future__ import annotations
 
 import abc
+from dataclasses import dataclass
 from typing import ClassVar, Iterable, Mapping, Sequence
 
 import numpy as np
 
 Context = tuple[str, int]
+
+
+class PlanningError(ValueError):
+    """The planner cannot answer: bad T or costs, a malformed state, an unreachable goal."""
+
+
+@dataclass(frozen=True)
+class Plan:
+    """A plan and what it is worth under the transition model and costs it was made for."""
+
+    actions: tuple[str, ...]      # ASP terms in text, objects named
+    loads: tuple[int, ...]        # objects each trip moves to the goal, in order
+    expected_utility: float       # under T and costs (float, unscaled)
+    optimal: bool                 # optimality proven by clingo
+    solve_ms: float               # wall time of the call, grounding included
+
+    def to_dict(self) -> dict:
+        """JSON-ready form; ``plan`` is the list of actions."""
+        return {"plan": list(self.actions), "loads": list(self.loads),
+                "expected_utility": float(self.expected_utility),
+                "optimal": bool(self.optimal), "solve_ms": float(self.solve_ms)}
+
 
 # A solid object's density (kg/m^3) as a request may set it: the bounds of
 # ``sim_workers.properties`` (MIN_DENSITY, MAX_DENSITY), which the physics half checks

@@ -185,8 +185,12 @@ def main(args) -> int:
     def on_episode(record, session, checkpoint):
         post = record["posterior"]
         counts = record.get("particles_per_action") or [0]
-        bar.set_postfix(utility=f"{record['utility']:.0f}", size=f"{post['size_mean'] * 1000:.1f}mm",
-                        spread=f"{post['size_std'] * 1000:.1f}mm", loads=record["loads"],
+        if "size_mean" in post:
+            shown = {"size": f"{post['size_mean'] * 1000:.1f}mm", "spread": f"{post['size_std'] * 1000:.1f}mm"}
+        else:                       # a domain without a size: its first property of L
+            name, p = next(iter(post["properties"].items()))
+            shown = {name: f"{p['mean']:.3g}", "spread": f"{p['std']:.2g}"}
+        bar.set_postfix(utility=f"{record['utility']:.0f}", **shown, loads=record["loads"],
                         particles=f"{min(counts)}-{max(counts)}" if min(counts) != max(counts) else counts[0])
         if record.get("transit_fallbacks"):       # an unchecked transit must not go unnoticed
             bar.write(f"episode {record['episode']}: {record['transit_fallbacks']} action(s) without a "

@@ -223,6 +223,12 @@ def run_seed(seed: int, experiment: int, setting: int, run: int) -> int:
     return int(((int(words[0]) << 32) | int(words[1])) & (2**63 - 1))
 
 
+def _has_size(domain: str) -> bool:
+    from sim_workers.domains import load
+
+    return "size" in load(domain).L.names
+
+
 def run_config(spec: Spec, k: int, r: int) -> RunConfig:
     """RunConfig of run r of setting k (pydantic ValidationError on bad values)."""
     s = spec.settings[k]
@@ -231,6 +237,8 @@ def run_config(spec: Spec, k: int, r: int) -> RunConfig:
               "seed": run_seed(spec.seed, EXPERIMENTS.index(spec.name), k, r),
               "particle_budget": spec.particle_budget, "min_particles": spec.min_particles}
     fields.update(s.overrides)
+    if not _has_size(spec.domain):      # a domain without a size in L takes its truth by name
+        fields.pop("true_size")
     if not AGENT_SPECS[fields["agent"]].learn_belief:     # tmp_rl, toep
         fields["particles"] = 1          # they keep no particles; 1 keeps the config honest
     return RunConfig(**fields)

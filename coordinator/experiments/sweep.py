@@ -62,6 +62,8 @@ def sweep_settings(domain: str, scale: str = "default") -> list[Setting]:
     L = phys.L
     low, high = L.bounds(1, False)
     sizes = prior_sizes(float(low[0]), float(high[0]), SIZE_COUNTS[scale])
+    if L.names[0] != "size":
+        return _property_settings(domain, L.names[0], sizes)
     out = [Setting(f"sweep-{domain}-{_mm(s)}mm", f"{_mm(s)} mm", {"agent": "tmoc", "true_size": s},
                    {"true_size": s}) for s in sizes]
     for i in VARIATION_AT[scale]:
@@ -83,6 +85,22 @@ def sweep_settings(domain: str, scale: str = "default") -> list[Setting]:
     return out
 
 
+def _property_settings(domain: str, name: str, values: list[float]) -> list[Setting]:
+    """A domain whose L has no size: truths of its first property over the prior. The run
+    takes it as ``truth``; its T* probes as the physics spec's ``true_<name>`` option (the
+    kit's convention for a property's default truth)."""
+    return [Setting(f"sweep-{domain}-{name}{v:g}", f"{name} {v:g}", {"agent": "tmoc", "truth": {name: v}},
+                    {"options": {f"true_{name}": v}}) for v in values]
+
+
+def _default_truths(config: dict) -> dict[str, float]:
+    """L's default truth by name for the run's domain and options."""
+    from sim_workers.domains import load
+
+    L = load(config["domain"], n_blocks=config["n_blocks"], **(config.get("options") or {})).L
+    return dict(zip(L.names, (float(t) for t in L.truth)))
+
+
 # ----------------------------------------------------------------------------- analysis
 def true_row(config: dict, posterior: dict) -> list[tuple[str, int | None, float, float, float]]:
     """(property, block or None, truth, posterior mean, posterior std) for every entry of
@@ -92,6 +110,8 @@ def true_row(config: dict, posterior: dict) -> list[tuple[str, int | None, float
     mean, std = posterior.get("mean"), posterior.get("std")
     n = config["n_blocks"]
     truths = {"size": float(config["true_size"])}
+    if any(n not in ("size", "density") for n in names):
+        truths = {**_default_truths(config), **truths, **(config.get("truth") or {})}
     if "density" in names:
         truths["density"] = float(config["truth"].get("density", config["options"].get("density", 700.0)))
     per_block = bool(config["sizes_variation"]) and mean is not None and len(mean) == n * len(names)
@@ -164,8 +184,10 @@ def sweep_rows(spec: Spec, out: Path, t_stars: dict) -> list[dict]:
             data = json.loads(run_path(out, s, r).read_text())
             if data["config"]["sizes_variation"]:       # T* is probed with equal blocks
                 optimum = None
+            first = true_row(data["config"], data["episodes"][-1]["posterior"])[0]
             row = {"domain": spec.domain, "case": s.label, "key": s.key, "run": r, "seed": data["seed"],
-                   "true_size": data["config"]["true_size"], "t_star": t_star["transition"]}
+                   "true_size": data["config"]["true_size"], "truth_name": first[0], "truth_value": first[2],
+                   "t_star": t_star["transition"]}
             row.update(judge_run(data, optimum))
             rows.append(row)
     return rows
@@ -253,22 +275,31 @@ def plot_sweep(rows: list[dict], path: Path) -> None:
         sel = [r for r in rows if pick(r)]
         if not sel:
             continue
-        x = [1000 * r["true_size"] for r in sel]
+        x = [_x(r) for r in sel]
         judged = [r for r in sel if r["regret_last"] is not None]
-        a.scatter([1000 * r["true_size"] for r in judged], [r["regret_last"] for r in judged],
+        a.scatter([_x(r) for r in judged], [r["regret_last"] for r in judged],
                   marker=marker, label=label)
         b.scatter(x, [min(r["z_max"], 20.0) for r in sel], marker=marker, label=label)
     a.axhline(NEAR_OPTIMUM, color="grey", ls="--", lw=1)
-    a.set(xlabel="true block size (mm)", ylabel="regret over the last half (utility)",
+    xlabel = "true block size (mm)" if rows[0].get("truth_name", "size") == "size" \
+        else f"true {rows[0]['truth_name']}"
+    a.set(xlabel=xlabel, ylabel="regret over the last half (utility)",
           title="regret against the T*-optimum")
     a.set_yscale("symlog", linthresh=50)
     b.axhline(COVERAGE_Z, color="grey", ls="--", lw=1)
-    b.set(xlabel="true block size (mm)", ylabel="|error| / posterior std (max over L, capped at 20)",
+    b.set(xlabel=xlabel, ylabel="|error| / posterior std (max over L, capped at 20)",
           title="posterior calibration")
     a.legend()
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
+
+
+def _x(row: dict) -> float:
+    """The truth on the plot's axis: the size in mm, else the first property as it is."""
+    if row.get("truth_name", "size") == "size":
+        return 1000 * row["true_size"]
+    return row["truth_value"]
 
 
 def write_sweep(spec: Spec, out: Path, t_stars: dict) -> dict:

@@ -42,25 +42,8 @@ DEFAULT_CLASS = "block"
 TRANSITION_FIELDS = ("pickup", "stack", "push")
 
 
-class PlanningError(ValueError):
-    """The planner cannot answer: bad T or costs, a malformed state, an unreachable goal."""
-
-
-@dataclass(frozen=True)
-class Plan:
-    """A plan and what it is worth under the transition model and costs it was made for."""
-
-    actions: tuple[str, ...]      # ASP terms in text, blocks named
-    loads: tuple[int, ...]        # blocks carried by each push to goal, in order
-    expected_utility: float       # under T and costs (float, unscaled)
-    optimal: bool                 # optimality proven by clingo
-    solve_ms: float               # wall time of the call, grounding included
-
-    def to_dict(self) -> dict:
-        """JSON-ready form; ``plan`` is the list of actions."""
-        return {"plan": list(self.actions), "loads": list(self.loads),
-                "expected_utility": float(self.expected_utility),
-                "optimal": bool(self.optimal), "solve_ms": float(self.solve_ms)}
+# Plan and PlanningError are every domain's (planner.domain); re-exported here.
+from planner.domain import Plan, PlanningError  # noqa: E402,F401
 
 
 # --------------------------------------------------------------------------- validation

@@ -317,3 +317,92 @@ def test_the_plugin_runs_one_episode(with_plugin):
     result = json.loads((out / "result.json").read_text())
     assert result["config"]["domain"] == "toy_tray" and len(result["episodes"]) == 1
     assert 0 < result["episodes"][0]["actions"] <= 8
+
+
+# -- a domain that is not a block world, as a plugin (issue 26) ---------------------------
+CHUTE = REPO / "docs" / "examples" / "tmoc-chute-domain"
+
+
+@pytest.fixture(scope="module")
+def with_chute(venv, tmp_path_factory) -> dict:
+    """The chute plugin pip-installed into the fresh venv (a copy: pip builds in place)."""
+    src = tmp_path_factory.mktemp("chute") / "tmoc-chute-domain"
+    shutil.copytree(CHUTE, src, ignore=_TREE_IGNORE)
+    proc = run_in(venv, [venv["python"], "-m", "pip", "install", "-q", "--no-deps", str(src)], timeout=600)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    return venv
+
+
+def test_the_chute_passes_check_domain_from_a_fresh_venv(with_chute):
+    proc = run_in(with_chute, [with_chute["tmoc"], "check-domain", "chute"], timeout=600)
+    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
+    from coordinator.conformance import CHECKS
+
+    assert f"chute: {len(CHECKS)}/{len(CHECKS)} checks passed" in proc.stdout
+    assert "5 values of friction across the prior" in proc.stdout
+    found = json.loads(run_in(with_chute, [with_chute["tmoc"], "domains", "--json"]).stdout)["domains"]
+    assert found["chute"]["source"] == "plugin (tmoc-chute-domain)"
+
+
+def test_the_chute_learns_its_friction_with_tmoc_run(with_chute):
+    """Three episodes at friction 0.6 (a train of 5 stalls, 4 goes through): the posterior
+    finds the friction and the last episode earns more than the first."""
+    out = with_chute["cwd"] / "chute"
+    proc = run_in(with_chute, [with_chute["tmoc"], "run", "--domain", "chute", "--truth", "friction=0.6",
+                               "--particles", "8", "--episodes", "3", "--seed", "2", "--no-progress",
+                               "--out", str(out)], timeout=900)
+    assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-4000:]
+    result = json.loads((out / "result.json").read_text())
+    post = result["summary"]["posterior"]["friction"]
+    assert abs(post["mean"] - 0.6) < 0.08 and post["std"] < 0.05, post
+    u = [e["utility"] for e in result["episodes"]]
+    assert u[-1] > u[0] and result["summary"]["final_size_mean"] is None, u
+    assert result["summary"]["transition"]["sweep"][0] > 0.9     # a single puck always goes
+
+
+def test_the_chute_runs_over_http(with_chute):
+    port = _free_port()
+    log = with_chute["cwd"] / "serve-chute.log"
+    with open(log, "w") as fh:
+        proc = subprocess.Popen([with_chute["tmoc"], "serve", "--port", str(port), "--db",
+                                 str(with_chute["cwd"] / "chute.sqlite"), "--log-level", "warning"],
+                                cwd=with_chute["cwd"], env=with_chute["env"], stdout=fh,
+                                stderr=subprocess.STDOUT, start_new_session=True)
+    try:
+        base = f"http://127.0.0.1:{port}"
+        deadline = time.monotonic() + 120
+        while time.monotonic() < deadline and proc.poll() is None:
+            try:
+                if httpx.get(f"{base}/health", timeout=2).status_code == 200:
+                    break
+            except httpx.TransportError:
+                pass
+            time.sleep(0.2)
+        bad = httpx.post(f"{base}/v1/tasks", json={"domain": "chute", "truth": {"friction": 5.0}}, timeout=30)
+        assert bad.status_code == 422 and "friction" in bad.text, bad.text
+        r = httpx.post(f"{base}/v1/tasks", timeout=30, json={
+            "domain": "chute", "particles": 4, "episodes": 2, "max_steps": 12, "seed": 3,
+            "truth": {"friction": 0.6}, "options": {"sweep_force": 5.0}})
+        assert r.status_code == 202, r.text
+        task = r.json()
+        deadline, view = time.monotonic() + 600, None
+        while time.monotonic() < deadline:
+            view = httpx.get(f"{base}/v1/tasks/{task['id']}", timeout=30).json()
+            if view["status"] in ("succeeded", "failed"):
+                break
+            time.sleep(1.0)
+        assert view["status"] == "succeeded", (view, log.read_text()[-3000:])
+        assert view["spec"]["domain"] == "chute" and view["progress"]["episodes_done"] == 2
+        post = view["latest"]["posterior"]["properties"]["friction"]
+        assert 0.15 <= post["mean"] <= 0.75 and post["std"] < 0.17, post
+    finally:
+        if proc.poll() is None:
+            proc.send_signal(signal.SIGTERM)
+            try:
+                proc.wait(40)
+            except subprocess.TimeoutExpired:
+                pass
+        try:
+            os.killpg(proc.pid, signal.SIGKILL)
+        except (ProcessLookupError, PermissionError):
+            pass

@@ -1,0 +1,91 @@
+"""The chute (docs/examples/tmoc-chute-domain), a domain that is not a block world, at a
+small scale from the checkout: its planner against brute force, and the mechanism that
+makes grounding L pay (Y's stroke limit from the believed friction). Installed into a
+fresh venv it is checked end to end in tests/installed (check-domain, tmoc run, HTTP)."""
+from __future__ import annotations
+
+import itertools
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+PLUGIN = Path(__file__).resolve().parents[2] / "docs" / "examples" / "tmoc-chute-domain"
+if str(PLUGIN) not in sys.path:
+    sys.path.insert(0, str(PLUGIN))
+
+from tmoc_chute_domain.physics import ChutePhysics  # noqa: E402
+from tmoc_chute_domain.task import ChuteTask, sweep_value  # noqa: E402
+
+from planner.domain import Plan, PlanningError, UnknownAction  # noqa: E402
+from sim_workers.base import missing_members  # noqa: E402
+from sim_workers.grounded_world import GroundedWorld, act  # noqa: E402
+
+
+def test_both_halves_implement_the_protocol():
+    from planner.domain import TaskDomain
+
+    assert missing_members(ChutePhysics) == [] and missing_members(ChuteTask, TaskDomain) == []
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_the_plan_is_the_best_split_by_brute_force(seed):
+    task, n = ChuteTask(), 6
+    rng = np.random.default_rng(seed)
+    T = {"sweep": sorted(rng.uniform(0.05, 1.0, n), reverse=True)}
+    plan = task.plan(task.initial_state(n), T)
+    assert isinstance(plan, Plan) and plan.optimal and sum(plan.loads) == n
+    best = max(sum(sweep_value(task.default_costs, T["sweep"][k - 1], k) for k in loads)
+               for loads in _splits(n))
+    assert plan.expected_utility == pytest.approx(best, abs=1e-3 * n)
+    state = task.initial_state(n)
+    for a in plan.actions:
+        state = task.apply(state, a)
+    assert task.is_goal(state)
+
+
+def _splits(n: int):
+    for cuts in itertools.product((0, 1), repeat=n - 1):
+        loads, run = [], 1
+        for c in cuts:
+            if c:
+                loads.append(run)
+                run = 1
+            else:
+                run += 1
+        yield loads + [run]
+
+
+def test_contexts_and_bad_input():
+    task = ChuteTask()
+    state = task.apply(task.initial_state(5), "sweep(p2)")
+    assert task.context_of(state, "sweep(p4)") == ("sweep", 2)
+    with pytest.raises(UnknownAction):
+        task.context_of(state, "push(r,c,init,goal)")
+    with pytest.raises(ValueError, match="p1 is not queued"):
+        task.apply(state, "sweep(p1)")
+    with pytest.raises(PlanningError, match="transition.sweep"):
+        task.plan(state, {"sweep": [1.0]})
+
+
+def _sweep(mu: float, believed: float, k: int):
+    d = ChutePhysics(n_blocks=4)
+    truth = {"friction": np.full(4, mu)}
+    with GroundedWorld(d) as world:
+        config = world.reset(d.initial_configuration(truth), truth)
+        out = act(world, d, config, {"friction": np.full(4, believed)}, f"sweep(p{k})")
+    return all(f"delivered(p{i + 1})" in out.state for i in range(k)), out.measurements[-1], \
+        d.action_pose({"friction": np.full(4, believed)}, config, f"sweep(p{k})")[5]
+
+
+@pytest.mark.slow
+def test_a_belief_below_the_truth_stalls_the_train_and_the_wrist_says_so():
+    """At friction 0.6 a train of 3 goes through when Y believes 0.6 and stalls at the
+    limit Y chose when it believes 0.3; the stroke force grows with the friction."""
+    ok, force, limit = _sweep(0.6, 0.6, 3)
+    assert ok and force < limit
+    stalled, force_low, limit_low = _sweep(0.6, 0.3, 3)
+    assert not stalled and limit_low < limit and force_low == pytest.approx(limit_low, rel=0.05)
+    ok_light, force_light, _ = _sweep(0.3, 0.3, 3)
+    assert ok_light and force_light < force
