@@ -84,8 +84,8 @@ class SimulatedReality:
             self.world.close()
         self.world = GroundedWorld(domain)
         config = domain.initial_configuration(self.truth)
-        # Row 0 is the container: it stays put; the blocks are placed with jitter.
-        objects = jitter_planar(rng, config.objects, range(1, len(config.objects)),
+        # The domain's movable objects are placed with jitter (a fixture it names stays put).
+        objects = jitter_planar(rng, config.objects, domain.jittered_objects,
                                 self.gap.placement_m, self.gap.yaw_rad)
         placed = self.world.reset(Configuration(config.robot, objects), self.truth)
         self._domain, self._start = domain, placed

@@ -114,6 +114,12 @@ class PhysicsDomain(abc.ABC):
         return float(self.spec.settle_s)
 
     @property
+    def jittered_objects(self) -> tuple[int, ...]:
+        """Rows of ``Configuration.objects`` the simulated reality places with jitter at the
+        start of an episode (default: every object; a domain keeps a fixture still)."""
+        return tuple(range(len(self.object_names)))
+
+    @property
     def execution_jitter(self) -> dict[str, float]:
         """The simulated reality's relative timing jitter per action kind: a real arm runs
         that kind U(1 +- jitter) times faster or slower than commanded (default: none)."""

@@ -50,6 +50,11 @@ class ContainerDomain(PhysicsDomain):
     def block_names(self) -> list[str]:
         return self.spec.block_names
 
+    @property
+    def jittered_objects(self) -> tuple[int, ...]:
+        """The blocks (rows 1..n): the tray stands where the task starts, at init."""
+        return tuple(range(1, 1 + self.spec.n_blocks))
+
     def true_properties(self, sizes_variation: bool = False) -> dict:
         """The hidden truth: all blocks `true_size`, or (variation "sizes") one 20 % larger."""
         sizes = np.full(self.spec.n_blocks, self.spec.true_size)

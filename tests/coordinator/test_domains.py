@@ -298,3 +298,19 @@ def test_the_domain_guide_names_every_member_of_the_protocol():
     missing = [m for base in (PhysicsDomain, TaskDomain) for m in required_members(base) + optional_members(base)
                if f"`{m}" not in doc]
     assert not missing, f"docs/DOMAINS.md does not name {missing}"
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_the_simulated_reality_jitters_every_movable_object(name):
+    """Issue 26: the reality placed every row but 0 with jitter ("row 0 is the container"),
+    so stack-and-push's b1 never moved. Now the domain says which rows it keeps still."""
+    from coordinator.reality import SimulatedReality
+
+    d = domains.load(name, n_blocks=3)
+    truth = d.physics.true_properties()
+    nominal = d.physics.initial_configuration(truth).objects
+    reality = SimulatedReality(name, {"n_blocks": 3}, truth)
+    placed = reality.start_episode(np.random.default_rng(4)).configuration.objects
+    moved = {i for i in range(len(nominal)) if not np.allclose(placed[i, :2], nominal[i, :2], atol=1e-6)}
+    assert moved == set(d.physics.jittered_objects)
+    assert {d.physics.object_names[i] for i in moved} >= set(d.physics.block_names) - {"container"}
