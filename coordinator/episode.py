@@ -94,5 +94,6 @@ def utility_terms(task, config: RunConfig) -> dict[str, float]:
     terms = dict(task.default_costs)
     given = config.costs.model_dump()
     for key in config.costs.model_fields_set | set(config.costs.model_extra or {}):
-        terms[key] = float(given[key])
+        if key in terms:        # (a dumped config also carries the block worlds' defaults)
+            terms[key] = float(given[key])
     return terms

@@ -146,6 +146,11 @@ class RunConfig(BaseModel):
         from coordinator.domains import checked_options, options_of
 
         self.options, phys = checked_options(self.domain, dict(self.options), self.n_blocks)
+        L = phys.L
+        self._size_in_L = "size" in L.names
+        if "size" in self.truth and not self._size_in_L:
+            raise ValueError(f"truth.size: not a property of L for domain {self.domain!r} "
+                             f"(properties: {', '.join(L.names)})")
         if "size" in self.truth:
             size = self.truth["size"]
             if "true_size" in self.model_fields_set and size != self.true_size:
@@ -154,8 +159,6 @@ class RunConfig(BaseModel):
             if not low <= size <= high:
                 raise ValueError(f"truth.size: {size} m is outside [{low}, {high}] m")
             self.true_size = float(size)
-        L = phys.L
-        self._size_in_L = "size" in L.names
         # (an explicit default is let through: stored and HTTP specs carry every field)
         if not self._size_in_L and self.true_size != type(self).model_fields["true_size"].default:
             raise ValueError(f"true_size: domain {self.domain!r} has no size in L "
@@ -175,7 +178,7 @@ class RunConfig(BaseModel):
             if name not in L.names:
                 raise ValueError(f"truth.{name}: not a property of L for domain {self.domain!r} "
                                  f"with these options (properties: {', '.join(L.names)})")
-        if len(L.names) > 1:
+        if len(L.names) > 1 or not self._size_in_L:
             # The truth must be a world the physics can build (e.g. a density > 0).
             from sim_workers.properties import PropertyError
 
@@ -223,13 +226,22 @@ class RunConfig(BaseModel):
         from coordinator.domains import task_half
 
         terms = task_half(self.domain).default_costs
-        for key in sorted(self.costs.model_fields_set | set(self.costs.model_extra or {})):
+        given = self.costs.model_fields_set | set(self.costs.model_extra or {})
+        for key in sorted(given):
             if key not in terms:
+                if key in Costs.model_fields and getattr(self.costs, key) == Costs.model_fields[key].default:
+                    continue     # another domain's default, as a dumped config carries it
                 raise ValueError(f"costs.{key}: not a utility term of domain {self.domain!r} "
                                  f"(terms: {', '.join(terms)})")
             value = getattr(self.costs, key)
             if not isinstance(value, (int, float)) or not 0 <= float(value) <= 1e4:
                 raise ValueError(f"costs.{key}: expected a number in [0, 10000], got {value!r}")
+        # The domain's own values where none was given, so that a dumped config (stored
+        # runs, checkpoints, tasks) reads back with the same utility (a domain whose terms
+        # differ from the block worlds' defaults would otherwise come back with theirs).
+        for key, value in terms.items():
+            if key not in given and getattr(self.costs, key, None) != value:
+                setattr(self.costs, key, float(value))
         return self
 
 

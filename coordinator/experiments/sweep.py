@@ -271,6 +271,8 @@ def plot_sweep(rows: list[dict], path: Path) -> None:
     fig, (a, b) = plt.subplots(1, 2, figsize=(11, 4))
     kinds = {"sizes": lambda r: "per block" not in r["case"] and "kg/m3" not in r["case"],
              "per block": lambda r: "per block" in r["case"], "density grid": lambda r: "kg/m3" in r["case"]}
+    if rows and rows[0].get("truth_name", "size") != "size":
+        kinds = {"truths": lambda r: True}
     for (label, pick), marker in zip(kinds.items(), "o^s"):
         sel = [r for r in rows if pick(r)]
         if not sel:

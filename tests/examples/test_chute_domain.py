@@ -89,3 +89,41 @@ def test_a_belief_below_the_truth_stalls_the_train_and_the_wrist_says_so():
     assert not stalled and limit_low < limit and force_low == pytest.approx(limit_low, rel=0.05)
     ok_light, force_light, _ = _sweep(0.3, 0.3, 3)
     assert ok_light and force_light < force
+
+
+@pytest.fixture
+def chute_registered(monkeypatch):
+    """The chute in the registry as its entry point would put it (this process only)."""
+    import sim_workers.domains as registry
+    from tmoc_chute_domain import DOMAIN
+
+    real = registry.plugin_entries
+    monkeypatch.setattr(registry, "plugin_entries",
+                        lambda: {**real(), "chute": {**DOMAIN, "distribution": "tmoc-chute-domain"}})
+
+
+def test_a_dumped_config_reads_back_with_the_domains_utility(chute_registered):
+    """A stored run, checkpoint or task is a dumped RunConfig: read back, it must keep the
+    chute's terms (fail 30, deliver 20), not the block worlds' defaults (50, 40)."""
+    from coordinator.domains import task_half
+    from coordinator.episode import utility_terms
+    from coordinator.run_config import RunConfig
+
+    task = task_half("chute")
+    first = RunConfig(domain="chute", truth={"friction": 0.6}, costs={"sweep": 25.0})
+    again = RunConfig(**first.model_dump())
+    assert utility_terms(task, again) == utility_terms(task, first) == {**task.default_costs, "sweep": 25.0}
+    assert again.truth_values() == {"friction": 0.6}
+
+
+@pytest.mark.parametrize("fields, named", [({"true_size": 0.05}, "true_size"),
+                                           ({"truth": {"size": 0.04}}, "truth.size"),
+                                           ({"truth": {"friction": 3.0}}, "truth.friction"),
+                                           ({"costs": {"pickup": 3.0}}, "costs.pickup")])
+def test_what_the_chute_does_not_have_is_refused_by_name(chute_registered, fields, named):
+    from pydantic import ValidationError
+
+    from coordinator.run_config import RunConfig
+
+    with pytest.raises(ValidationError, match=named.replace(".", r"\.")):
+        RunConfig(domain="chute", **fields)

@@ -342,6 +342,13 @@ def test_the_chute_passes_check_domain_from_a_fresh_venv(with_chute):
     assert "5 values of friction across the prior" in proc.stdout
     found = json.loads(run_in(with_chute, [with_chute["tmoc"], "domains", "--json"]).stdout)["domains"]
     assert found["chute"]["source"] == "plugin (tmoc-chute-domain)"
+    assert [p["name"] for p in found["chute"]["properties"]] == ["friction"]
+    # L has no size: a size is refused by name, in one line, exit 2; so is a bad friction.
+    for argv, field in ((["--true-size", "0.05"], "true_size"), (["--truth", "size=0.04"], "truth.size"),
+                        (["--truth", "friction=3"], "truth.friction")):
+        proc = run_in(with_chute, [with_chute["tmoc"], "run", "--domain", "chute", *argv, "--out", "x"])
+        lines = [ln for ln in proc.stderr.splitlines() if ln.startswith("tmoc run: error")]
+        assert proc.returncode == 2 and len(lines) == 1 and field in lines[0], proc.stderr[-2000:]
 
 
 def test_the_chute_learns_its_friction_with_tmoc_run(with_chute):
