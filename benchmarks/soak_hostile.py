@@ -241,7 +241,7 @@ def main() -> int:
         same_task, same_session, rounds = [], [], 0
         while time.monotonic() < end:
             holder: dict = {}
-            t = threading.Thread(target=lambda: holder.update(s=run_session(client, session_ids)))
+            t = threading.Thread(target=lambda: holder.update(s=run_session(client, session_ids)))  # noqa: B023 (joined below)
             t.start()
             same_task.append(run_task(client) == alone_task)
             t.join()

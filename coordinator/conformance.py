@@ -240,7 +240,7 @@ def check_y(d: Domain) -> str:
     config = d.physics.initial_configuration(_truth(d))
     n = 0
     for size in (low, high):
-        for state, action in _first_actions(d, 1):
+        for _state, action in _first_actions(d, 1):
             pose = d.physics.action_pose(_sized(d, size), config, action)
             assert np.all(np.isfinite(pose)), f"Y({action}) at {size} is not finite: {pose}"
             assert np.all(pose[:3] >= workspace.low[:3]) and np.all(pose[:3] <= workspace.high[:3]), \

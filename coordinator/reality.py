@@ -63,7 +63,7 @@ class SimulatedReality:
     """
 
     def __init__(self, domain_name: str, domain_options: dict, true_properties: dict,
-                 gap: RealityGap = RealityGap(), failure: ContextFailure | None = None,
+                 gap: RealityGap = RealityGap(), failure: ContextFailure | None = None,  # noqa: B008 (frozen)
                  context_fn: Callable | None = None) -> None:
         if failure is not None and context_fn is None:
             raise ValueError("failure: needs the task's context_fn")

@@ -208,7 +208,9 @@ def plot_curve(result: dict, path: Path) -> None:
     fig, axes = plt.subplots(1, 1 + len(names), figsize=(5 * (1 + len(names)), 3.8))
     ax1 = axes[0]
     ax1.plot(x, [e["utility"] for e in eps], marker="o")
-    ax1.set_xlabel("episode"); ax1.set_ylabel("utility"); ax1.set_title(f"{result['config']['agent']}: utility")
+    ax1.set_xlabel("episode")
+    ax1.set_ylabel("utility")
+    ax1.set_title(f"{result['config']['agent']}: utility")
     for ax, name in zip(axes[1:], names):
         if name == "size":
             scale, label = 1000.0, "block size (mm)"
@@ -223,7 +225,10 @@ def plot_curve(result: dict, path: Path) -> None:
         ax.fill_between(x, m - s, m + s, alpha=0.3, label="±1 std")
         if name in truth:
             ax.axhline(truth[name] * scale, color="k", ls="--", label=f"true {name}")
-        ax.set_xlabel("episode"); ax.set_ylabel(label); ax.set_title(f"belief over L: {name}"); ax.legend()
+        ax.set_xlabel("episode")
+        ax.set_ylabel(label)
+        ax.set_title(f"belief over L: {name}")
+        ax.legend()
     fig.tight_layout()
     fig.savefig(path, dpi=90)
     plt.close(fig)

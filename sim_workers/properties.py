@@ -109,7 +109,7 @@ class PropertySpace:
             raise PropertyError(f"truth.{unknown[0]}: not a property of L "
                                 f"(properties: {', '.join(self.names)})")
         values = [float(truth.get(n, t)) for n, t in zip(self.names, self.truth)]
-        for name, v, lo, hi in zip(self.names, values, self.low, self.high):
+        for name, v in zip(self.names, values):
             validate_positive(v, f"truth.{name}", 0.0, np.inf)
         if not per_block:
             return np.array(values)

@@ -68,7 +68,9 @@ def _milestone_bars(plt, spec: Spec, table: list[dict]):
         ax.set_xticks(x, [str(t["episode"]) if t["from_episode"] == t["episode"]
                           else f"{t['from_episode']}-{t['episode']}" for t in rows])
         ax.set_ylim(0, 105)
-        ax.set_xlabel("episodes"); ax.set_ylabel("%"); ax.set_title(f"{title} (mean ± std over runs)")
+        ax.set_xlabel("episodes")
+        ax.set_ylabel("%")
+        ax.set_title(f"{title} (mean ± std over runs)")
     fig.suptitle(f"milestones: TMOC, {spec.runs} runs, N = {spec.particles}, {truth_label(spec.to_dict())}")
     return fig
 
@@ -90,9 +92,11 @@ def _curves(plt, spec: Spec, arrays: dict, density: bool):
             line, = ax.plot(x, m, label=label, marker="o" if len(x) < 30 else None, ms=3)
             ax.fill_between(x, m - s, m + s, alpha=0.2, color=line.get_color())
     if density:
-        axes[2].set_xlabel("episode"); axes[2].set_ylabel("|density mean - truth| (kg/m^3)")
+        axes[2].set_xlabel("episode")
+        axes[2].set_ylabel("|density mean - truth| (kg/m^3)")
         axes[2].set_title("posterior error of the density", fontsize=10)
-    ax1.set_xlabel("episode"); ax1.set_ylabel("utility")
+    ax1.set_xlabel("episode")
+    ax1.set_ylabel("utility")
     ax1.set_title("utility (mean ± 1 std over runs)")
     means = np.concatenate([a["utility"].mean(axis=0) for a in arrays.values()])
     if np.ptp(means) > SYMLOG_ABOVE:
@@ -104,7 +108,8 @@ def _curves(plt, spec: Spec, arrays: dict, density: bool):
         ax1.set_yticks(ticks, [f"{t:.0f}" for t in ticks])
         ax1.set_title(f"utility (mean ± 1 std; linear within ±{SYMLOG_LINEAR:.0f}, log beyond)",
                       fontsize=10)
-    ax2.set_xlabel("episode"); ax2.set_ylabel("|size mean - truth| (mm)")
+    ax2.set_xlabel("episode")
+    ax2.set_ylabel("|size mean - truth| (mm)")
     ax2.set_title("posterior error of L (agents without a belief: the prior mean's)", fontsize=10)
     from matplotlib.ticker import MaxNLocator
 

@@ -60,32 +60,40 @@ def _action_trajectory(spec, config, action, key, transit):
     move = tr.time_parameterize(path, spec.move_speed)
     t_pre = float(move[-1, 0])
     if name == "pickup":
-        closed = key.copy(); closed[4] = CLOSED
-        lifted = closed.copy(); lifted[2] = spec.carry_height
+        closed = key.copy()
+        closed[4] = CLOSED
+        lifted = closed.copy()
+        lifted[2] = spec.carry_height
         tail = tr.time_parameterize(np.array([pre, key]), spec.approach_speed)
         grip = tr.time_parameterize(np.array([key, closed]), 1.0, finger_speed=spec.finger_speed)
         grip = np.vstack([grip, [grip[-1, 0] + spec.GRIP_DWELL_S, *closed]])  # dwell: let the grip settle
         lift = tr.time_parameterize(np.array([closed, lifted]), spec.lift_speed)
         return tr.concatenate(move, tail, grip, lift), t_pre
     if name == "stack":
-        down = key.copy(); down[4] = CLOSED
-        up = key.copy(); up[2] = max(spec.carry_height, key[2] + spec.STACK_LEAVE_CLEARANCE)
+        down = key.copy()
+        down[4] = CLOSED
+        up = key.copy()
+        up[2] = max(spec.carry_height, key[2] + spec.STACK_LEAVE_CLEARANCE)
         tail = tr.time_parameterize(np.array([pre, down]), spec.approach_speed)
         release = tr.time_parameterize(np.array([down, key]), 1.0, finger_speed=spec.finger_speed)
         release = np.vstack([release, [release[-1, 0] + spec.RELEASE_DWELL_S, *key]])
         leave = tr.time_parameterize(np.array([key, up]), spec.lift_speed)
         return tr.concatenate(move, tail, release, leave), t_pre
     # push: descend behind the container, stroke to the target, back off and rise.
-    end = key.copy(); end[0] = push_end_x(spec, config, action, key)
+    end = key.copy()
+    end[0] = push_end_x(spec, config, action, key)
     d = np.sign(end[0] - key[0]) or 1.0
-    back = end.copy(); back[0] -= d * spec.PUSH_BACK_OFF
-    up = back.copy(); up[2] = spec.carry_height
+    back = end.copy()
+    back[0] -= d * spec.PUSH_BACK_OFF
+    up = back.copy()
+    up[2] = spec.carry_height
     descend = tr.time_parameterize(np.array([pre, key]), 2 * spec.approach_speed)
     stroke = tr.trapezoid_stroke(key, end, spec.push_speed, spec.push_accel, 0.0)
     retreat = tr.time_parameterize(np.array([end, back, up]), spec.lift_speed)
     # Up and clear, the fingers open wide: a block that a failed push wedged between them
     # drops instead of being carried off (issue 24: at 58 mm a tipped block rode up in the
     # fingers with the container at goal, a state no plan leaves).
-    wide = up.copy(); wide[4] = spec.max_opening
+    wide = up.copy()
+    wide[4] = spec.max_opening
     release = tr.time_parameterize(np.array([up, wide]), 1.0, finger_speed=spec.finger_speed)
     return tr.concatenate(move, descend, stroke, retreat, release), t_pre

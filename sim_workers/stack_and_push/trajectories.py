@@ -103,26 +103,33 @@ def _action_trajectory(spec: StackAndPushSpec, config: Configuration, action: st
     move = tr.time_parameterize(path, spec.move_speed)
     t_pre = float(move[-1, 0])
     if name == "pickup":
-        closed = key.copy(); closed[4] = CLOSED
-        lifted = closed.copy(); lifted[2] = spec.carry_height
+        closed = key.copy()
+        closed[4] = CLOSED
+        lifted = closed.copy()
+        lifted[2] = spec.carry_height
         tail = tr.time_parameterize(np.array([pre, key]), spec.approach_speed)
         grip = tr.time_parameterize(np.array([key, closed]), 1.0, finger_speed=spec.finger_speed)
         grip = np.vstack([grip, [grip[-1, 0] + 0.3, *closed]])  # dwell: let the grip settle
         lift = tr.time_parameterize(np.array([closed, lifted]), spec.lift_speed)
         return _efforts(spec, tr.concatenate(move, tail, grip, lift), name, effort), t_pre
     if name == "stack":
-        down = key.copy(); down[4] = CLOSED
+        down = key.copy()
+        down[4] = CLOSED
         # Leave straight up, above the new top plus a carried block of any prior size.
-        up = key.copy(); up[2] = max(spec.carry_height, key[2] + spec.prior_high + spec.carry_margin)
+        up = key.copy()
+        up[2] = max(spec.carry_height, key[2] + spec.prior_high + spec.carry_margin)
         tail = tr.time_parameterize(np.array([pre, down]), spec.approach_speed)
         release = tr.time_parameterize(np.array([down, key]), 1.0, finger_speed=spec.finger_speed)
         release = np.vstack([release, [release[-1, 0] + 0.3, *key]])  # let the block settle
         leave = tr.time_parameterize(np.array([key, up]), spec.lift_speed)
         return _efforts(spec, tr.concatenate(move, tail, release, leave), name, effort), t_pre
     # push: descend behind the tower, stroke to the goal, back off and rise past its top.
-    end = key.copy(); end[0] = push_end_x(spec, config, action, key)
-    back = end.copy(); back[0] -= 0.03
-    up = back.copy(); up[2] = max(spec.carry_height, tower_top(spec, config) + spec.carry_margin)
+    end = key.copy()
+    end[0] = push_end_x(spec, config, action, key)
+    back = end.copy()
+    back[0] -= 0.03
+    up = back.copy()
+    up[2] = max(spec.carry_height, tower_top(spec, config) + spec.carry_margin)
     descend = tr.time_parameterize(np.array([pre, key]), 2 * spec.approach_speed)
     # Force-limited (mass in Y): the reference speeds up fast and the limit sets the pace.
     accel = spec.push_accel if effort is None else spec.push_accel_ref

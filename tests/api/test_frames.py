@@ -41,7 +41,7 @@ def test_frames_are_bounded_served_as_png_and_change_no_result(tmp_path):
             prior = c.get(f"/v1/tasks/{with_frames}/transition").json()
             assert prior["episodes_done"] == 0 and {r["p"] for r in prior["rows"]} == {1.0}
             for t in (with_frames, without):
-                wait_for(lambda: c.get(f"/v1/tasks/{t}").json()["status"] == "succeeded", 600, what=t)
+                wait_for(lambda: c.get(f"/v1/tasks/{t}").json()["status"] == "succeeded", 600, what=t)  # noqa: B023
             listed = c.get(f"/v1/tasks/{with_frames}/frames").json()
             assert listed["max_frames"] == 2 and listed["total"] == 2          # the bound holds
             names = [f["name"] for f in listed["items"]]

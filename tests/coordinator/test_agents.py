@@ -64,7 +64,7 @@ def episodes() -> dict[str, tuple[dict, dict]]:
         pool = ShardPool(cfg.domain, {"n_blocks": cfg.n_blocks}, n_shards=0)
         try:
             result = run(cfg, pool=pool,
-                         on_episode=lambda rec, session, ck: sims.update(session.experience.counts()["sim"]))
+                         on_episode=lambda rec, session, ck: sims.update(session.experience.counts()["sim"]))  # noqa: B023
         finally:
             pool.close()
         out[name] = (result, sims)

@@ -121,7 +121,7 @@ def test_a_shared_size_is_redrawn_whole_and_a_point_belief_never():
 
 def _sequence(s: Session) -> np.ndarray:
     _lock_block(s, 0)
-    for k in range(4):
+    for _ in range(4):
         _failed_pickup(s, 0)
         sizes = s.belief.particles[:, 0]
         s.reweighting.weigh(s.belief, "pickup(r,b1,init)", symbolic(s, sizes > 0.035), observed(0.041),

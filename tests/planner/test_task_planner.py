@@ -264,8 +264,9 @@ def test_random_mid_episode_states_match_brute_force():
                 atoms.add(f"is_in(b{i},{place})")
         if holder is None:
             atoms.add("hand_empty(r)")
-        T = transition(n, push=lambda k, a=rng.uniform(0, .25): max(0.0, 1 - a * k),
-                       stack=lambda j, b=rng.uniform(0, .1): 1 - b * j,
+        # (the defaults bind one draw per model, on purpose)
+        T = transition(n, push=lambda k, a=rng.uniform(0, .25): max(0.0, 1 - a * k),  # noqa: B008
+                       stack=lambda j, b=rng.uniform(0, .1): 1 - b * j,  # noqa: B008
                        pickup=float(rng.uniform(.5, 1)))
         result = tp.plan(atoms, T)
         sy.validate_plan(atoms, result.actions)

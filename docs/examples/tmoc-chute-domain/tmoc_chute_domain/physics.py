@@ -300,7 +300,9 @@ class ChutePhysics(PhysicsDomain):
         end = np.array(key, dtype=np.float64)
         end[0] = sp.goal_x + sp.goal_margin - sp.puck_radius - sp.FINGER_HALF[0]
         stroke = tr.trapezoid_stroke(key, end, sp.sweep_speed, sp.sweep_accel, 0.0)
-        up = end.copy(); up[0] -= 0.02; up[2] = sp.carry_height
+        up = end.copy()
+        up[0] -= 0.02
+        up[2] = sp.carry_height
         leave = tr.time_parameterize(np.array([end, up]), sp.approach_speed)
         free = sp.base_max_force
         pieces = [tr.with_efforts(move, sp.grip_force, free), tr.with_efforts(descend, sp.grip_force, free),
