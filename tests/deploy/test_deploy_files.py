@@ -17,6 +17,7 @@ import yaml
 
 from coordinator.cli import UsageError, build_parser
 from coordinator.commands import serve
+from ..helpers import dockerfile_instructions
 
 try:
     import tomllib
@@ -33,20 +34,7 @@ ENTRY = next(iter(PYPROJECT["project"]["scripts"]))          # "tmoc"
 
 # -- helpers ------------------------------------------------------------------------------
 def dockerfile() -> list[tuple[str, str]]:
-    """(INSTRUCTION, arguments) per instruction: comments dropped, continuations joined."""
-    out, buf = [], ""
-    for line in (DEPLOY / "Dockerfile").read_text().splitlines():
-        if not buf and (not line.strip() or line.lstrip().startswith("#")):
-            continue
-        if line.rstrip().endswith("\\"):
-            buf += line.rstrip()[:-1] + " "
-            continue
-        buf += line
-        op, _, args = buf.strip().partition(" ")
-        out.append((op.upper(), args.strip()))
-        buf = ""
-    assert not buf, "Dockerfile ends inside a continued line"
-    return out
+    return dockerfile_instructions(DEPLOY / "Dockerfile")
 
 
 def tmoc_commands(text: str) -> list[list[str]]:

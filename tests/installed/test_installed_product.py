@@ -29,6 +29,8 @@ from pathlib import Path
 import httpx
 import pytest
 
+from ..helpers import dockerfile_instructions
+
 REPO = Path(__file__).resolve().parents[2]
 DOCKERFILE = REPO / "deploy" / "Dockerfile"
 PACKAGES = ("planner", "sim_workers", "coordinator", "api")
@@ -59,22 +61,6 @@ def source_modules(root: Path) -> list[str]:
             name = rel[:-3].replace("/", ".")
             mods.append(name[: -len(".__init__")] if name.endswith(".__init__") else name)
     return mods
-
-
-def dockerfile_instructions() -> list[tuple[str, str]]:
-    """(INSTRUCTION, arguments): comments dropped, continuation lines joined."""
-    out, buf = [], ""
-    for line in DOCKERFILE.read_text().splitlines():
-        if not buf and (not line.strip() or line.lstrip().startswith("#")):
-            continue
-        if line.rstrip().endswith("\\"):
-            buf += line.rstrip()[:-1] + " "
-            continue
-        buf += line
-        op, _, args = buf.strip().partition(" ")
-        out.append((op.upper(), args.strip()))
-        buf = ""
-    return out
 
 
 def build_wheel(source: Path, out: Path) -> Path:
