@@ -59,6 +59,9 @@ def register(subparsers) -> None:
                    help="the density Y believes (kg/m^3): the grip force and the push's force "
                         "limit come from the believed mass (stack_and_push; default: mass does "
                         "not enter Y)")
+    p.add_argument("--option", action="append", default=None, metavar="KEY=VALUE", dest="options",
+                   help="a domain option of the probed world, repeatable (`tmoc domains`), e.g. "
+                        "--option true_friction=0.6 for the chute, whose truth is not a size")
     p.add_argument("--trials", type=int, default=20, metavar="N", help="number of trials (default 20)")
     p.add_argument("--seed", type=int, default=0, metavar="SEED", help="random seed (default 0)")
     p.add_argument("--json", action="store_true", help="print one JSON object instead of a line")
@@ -113,7 +116,14 @@ def run(args: argparse.Namespace) -> int:
     if args.seed < 0:
         raise UsageError(f"--seed: {args.seed} must not be negative")
 
-    options = {}
+    from coordinator.domains import checked_options
+
+    from .run import parse_options
+
+    try:
+        options, _ = checked_options(args.domain, parse_options(args.options), n_blocks)
+    except ValueError as exc:
+        raise UsageError(f"--option: {exc}") from None
     for flag, value in (("--true-density", args.true_density), ("--believed-density", args.believed_density)):
         if value is not None:
             _check_density(flag, value)

@@ -28,6 +28,15 @@ def test_wrong_believed_size_fails_and_human_line(capsys):
     assert "0/2 succeeded" in out and "success rate 0.000" in out and "believed 0.0315 m" in out
 
 
+def test_an_option_reaches_the_probed_world(capsys):
+    """--option sets the probed world's spec (the chute's truth is its `true_friction`)."""
+    args = BASE + ["--action", "push", "--load", "2", "--trials", "2", "--json"]
+    assert main(args + ["--option", "container_mass=0.3"]) == 0
+    same = json.loads(capsys.readouterr().out)
+    assert main(args) == 0
+    assert json.loads(capsys.readouterr().out) == same           # the default, given
+
+
 def test_push_with_load_same_seed_same_answer(capsys):
     args = BASE + ["--action", "push", "--load", "2", "--trials", "2", "--json"]
     assert main(args) == 0
@@ -50,6 +59,8 @@ def test_push_with_load_same_seed_same_answer(capsys):
     (["--action", "push", "--load", "0"], "--load"),
     (["--action", "push", "--load", "9"], "--load"),
     (["--action", "stack", "--seed", "-1"], "--seed"),
+    (["--action", "push", "--option", "no_such=1"], "--option"),
+    (["--action", "push", "--option", "push_speed=fast"], "--option"),
 ])
 def test_bad_input_names_the_flag_and_exits_2(capsys, extra, flag):
     # Later flags override BASE's (argparse keeps the last value).

@@ -329,6 +329,15 @@ def test_the_chute_passes_check_domain_from_a_fresh_venv(with_chute):
     found = json.loads(run_in(with_chute, [with_chute["tmoc"], "domains", "--json"]).stdout)["domains"]
     assert found["chute"]["source"] == "plugin (tmoc-chute-domain)"
     assert [p["name"] for p in found["chute"]["properties"]] == ["friction"]
+    # Its probes: a train of 4 goes through at friction 0.3 and stalls at 0.7 (the cap).
+    rates = {}
+    for mu in (0.3, 0.7):
+        proc = run_in(with_chute, [with_chute["tmoc"], "probe", "--domain", "chute", "--action", "sweep",
+                                   "--true-size", "0.045", "--load", "4", "--trials", "3", "--json",
+                                   "--option", f"true_friction={mu}"], timeout=300)
+        assert proc.returncode == 0, proc.stderr[-2000:]
+        rates[mu] = json.loads(proc.stdout)["success_rate"]
+    assert rates == {0.3: 1.0, 0.7: 0.0}, rates
     # L has no size: a size is refused by name, in one line, exit 2; so is a bad friction.
     for argv, field in ((["--true-size", "0.05"], "true_size"), (["--truth", "size=0.04"], "truth.size"),
                         (["--truth", "friction=3"], "truth.friction")):
