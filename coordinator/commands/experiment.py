@@ -61,6 +61,9 @@ def register(sub) -> None:
     p.add_argument("--ray-address", default=None, help="join a running Ray cluster")
     p.add_argument("--out", default="runs/experiments", help="output directory DIR")
     p.add_argument("--resume", action="store_true", help="reuse the finished runs in DIR/runs")
+    p.add_argument("--log-to", default=None, metavar="tensorboard:DIR",
+                   help="also log every run's episodes to TensorBoard event files in DIR/<setting>/run<r> "
+                        "(needs tmoc-service[tracker])")
     p.add_argument("--no-progress", action="store_true")
     p.set_defaults(func=main)
 
@@ -150,10 +153,20 @@ def main(args) -> int:
                              "or choose another --out")
     from ..fanout import init_ray
 
+    if args.log_to is not None:
+        from ..tracker import TrackerError, parse_log_to
+
+        try:
+            parse_log_to(args.log_to)
+            import tensorboard  # noqa: F401
+        except TrackerError as exc:
+            raise UsageError(f"--log-to: {exc}") from None
+        except ImportError:
+            raise UsageError("--log-to: tensorboard is not installed: pip install 'tmoc-service[tracker]'") from None
     init_ray(args.ray_address)
     try:
         done = ex.execute(spec, out, resume=args.resume, progress=not args.no_progress,
-                          checkpoint_s=args.checkpoint_s)
+                          checkpoint_s=args.checkpoint_s, log_to=args.log_to)
     except ex.ResumeError as exc:
         raise UsageError(f"--resume: {exc}; choose another --out") from None
     except KeyboardInterrupt:

@@ -62,6 +62,10 @@ def register(sub) -> None:
     p.add_argument("--frames", action="store_true",
                    help="also write scene pictures (PNG) to OUT/frames/: the real world at the end of "
                         "every episode and every failed action beside what particles predicted")
+    p.add_argument("--log-to", default=None, metavar="tensorboard:DIR",
+                   help="also log every episode to an experiment tracker: TensorBoard event files in "
+                        "DIR (utility, failures, particles, the posterior of L, T per context; needs "
+                        "tmoc-service[tracker])")
     p.add_argument("--no-progress", action="store_true")
     p.set_defaults(func=main)
 
@@ -174,6 +178,14 @@ def _config(args) -> RunConfig:
 
 def main(args) -> int:
     config = _config(args)
+    tracker = None
+    if getattr(args, "log_to", None):
+        from ..tracker import TrackerError, open_tracker
+
+        try:
+            tracker = open_tracker(args.log_to)
+        except TrackerError as exc:
+            raise UsageError(f"--log-to: {exc}") from None
     if args.print_config:
         print(json.dumps(config.model_dump(mode="json"), indent=2))
         return 0
@@ -195,6 +207,8 @@ def main(args) -> int:
         if record.get("transit_fallbacks"):       # an unchecked transit must not go unnoticed
             bar.write(f"episode {record['episode']}: {record['transit_fallbacks']} action(s) without a "
                       f"checked transit: {record['transit_fallback_notes'][0]}", file=sys.stderr)
+        if tracker is not None:
+            tracker.episode(record, session)
         bar.update(1)
 
     sink = None
@@ -202,7 +216,11 @@ def main(args) -> int:
         from ..frames import DirectorySink
 
         sink = DirectorySink(Path(args.out) / "frames")
-    result = run(config, ray_address=args.ray_address, on_episode=on_episode, frames=sink)
+    try:
+        result = run(config, ray_address=args.ray_address, on_episode=on_episode, frames=sink)
+    finally:
+        if tracker is not None:
+            tracker.close()
     bar.close()
     path, png = write_result(result, Path(args.out))
     out = {"summary": result["summary"], "runtime": result["runtime"], "result": str(path), "plot": str(png)}

@@ -30,13 +30,19 @@ def _run_remote():
     import ray
 
     @ray.remote(num_cpus=1, max_retries=2)
-    def run_task(config: dict, key: str, resume: dict | None, progress, checkpoint_s: float | None):
+    def run_task(config: dict, key: str, resume: dict | None, progress, checkpoint_s: float | None,
+                 log_to: tuple[str, str] | None = None):
         from ..agents import agent_spec
         from ..runner import run
         from ..shard_pools import ShardPools
 
         cfg = RunConfig(**config)
         last = [time.monotonic()]
+        tracker = None
+        if log_to is not None:              # (value, run name): one event folder per run
+            from ..tracker import open_tracker
+
+            tracker = open_tracker(*log_to)
 
         def on_episode(record, session, checkpoint):
             send = (checkpoint_s is not None and record["episode"] + 1 < cfg.episodes
@@ -45,13 +51,19 @@ def _run_remote():
                 last[0] = time.monotonic()
             if progress is not None:
                 progress.episode.remote(key, checkpoint if send else None)
+            if tracker is not None:
+                tracker.episode(record, session)
 
         # The run's particles stay in this task's process (n_shards=0): the experiment
         # spreads runs, not particles, over the cluster. Ray is already up in a task.
-        with ShardPools(n_shards=0, max_pools=1, own_ray_thread=False) as shard_pools:
-            pool = (shard_pools.acquire(cfg.scene)
-                    if agent_spec(cfg.agent).learn_belief else None)
-            return run(cfg, pool=pool, on_episode=on_episode, resume=resume)
+        try:
+            with ShardPools(n_shards=0, max_pools=1, own_ray_thread=False) as shard_pools:
+                pool = (shard_pools.acquire(cfg.scene)
+                        if agent_spec(cfg.agent).learn_belief else None)
+                return run(cfg, pool=pool, on_episode=on_episode, resume=resume)
+        finally:
+            if tracker is not None:
+                tracker.close()
 
     return run_task
 
@@ -100,9 +112,10 @@ def _missing_runs(spec: Spec, out: Path, configs: dict, resume: bool) -> tuple[l
 
 
 def execute(spec: Spec, out: Path, *, resume: bool = False, progress: bool = True,
-            checkpoint_s: float | None = 60.0) -> dict:
+            checkpoint_s: float | None = 60.0, log_to: str | None = None) -> dict:
     """Run every missing run of `spec` on the Ray cluster (already initialised), write run
-    files as runs finish, then the CSV, JSON and PNG. Returns what was done."""
+    files as runs finish, then the CSV, JSON and PNG. Returns what was done. `log_to`
+    ("tensorboard:DIR"): each run also logs its episodes to DIR/<setting>/run<r>."""
     import ray
     from tqdm import tqdm
 
@@ -128,7 +141,8 @@ def execute(spec: Spec, out: Path, *, resume: bool = False, progress: bool = Tru
     for k, r in todo:
         cfg = configs[(k, r)]
         resumed += (k, r) in partials
-        ref = task.remote(cfg.model_dump(), f"{k}/{r}", partials.get((k, r)), prog, checkpoint_s)
+        log = None if log_to is None else (log_to, f"{spec.settings[k].key}/run{r}")
+        ref = task.remote(cfg.model_dump(), f"{k}/{r}", partials.get((k, r)), prog, checkpoint_s, log)
         refs[ref] = (k, r)
     ep_total = sum(spec.episodes - done_eps[kr] for kr in todo)
     run_bar = tqdm(total=len(todo), desc=f"{spec.name}: runs", unit="run", disable=not progress,
