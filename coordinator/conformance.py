@@ -189,10 +189,7 @@ def check_determinism(d: Domain, ray_actors: bool = True) -> str:
         traj = d.physics.action_trajectory(config, action, key)
         t0 = d.physics.transit_end_time(config, action, key)
         # The truth as the wire carries it: a row of L per particle.
-        if "block_sizes" in props:
-            rows = np.asarray(props["block_sizes"], dtype=np.float64)[None, :]
-        else:
-            rows = np.asarray(d.physics.L.truth, dtype=np.float64)[None, :]
+        rows = np.asarray(d.physics.L.truth, dtype=np.float64)[None, :]
         outs = ray.get([x.simulate.remote(config.to_array(), rows, action, traj, t0) for x in actors])
         assert np.array_equal(outs[0]["configurations"], outs[1]["configurations"]), "two Ray actors differ"
         assert outs[0]["configurations"][0].tobytes() == first, "a Ray actor differs from in-process"

@@ -14,6 +14,7 @@ are performed instead: the files its `COPY` lines name become the build context,
 """
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import re
@@ -226,27 +227,30 @@ def _free_port() -> int:
         return s.getsockname()[1]
 
 
-def test_tmoc_serve_answers_health(venv):
+@contextlib.contextmanager
+def served(venv: dict, name: str):
+    """`tmoc serve` from the venv on a free port, its own database and log: yields (base URL,
+    health JSON or None if it never answered, the log's path); stopped, Ray's helpers too."""
     port = _free_port()
-    db = venv["cwd"] / "tmoc.sqlite"
-    log = venv["cwd"] / "serve.log"
+    log = venv["cwd"] / f"{name}.log"
     with open(log, "w") as fh:
-        proc = subprocess.Popen([venv["tmoc"], "serve", "--port", str(port), "--db", str(db),
-                                 "--log-level", "warning"], cwd=venv["cwd"], env=venv["env"],
-                                stdout=fh, stderr=subprocess.STDOUT, start_new_session=True)
+        proc = subprocess.Popen([venv["tmoc"], "serve", "--port", str(port), "--db",
+                                 str(venv["cwd"] / f"{name}.sqlite"), "--log-level", "warning"],
+                                cwd=venv["cwd"], env=venv["env"], stdout=fh, stderr=subprocess.STDOUT,
+                                start_new_session=True)
+    base = f"http://127.0.0.1:{port}"
     try:
         deadline, health = time.monotonic() + 120, None
         while time.monotonic() < deadline and proc.poll() is None:
             try:
-                r = httpx.get(f"http://127.0.0.1:{port}/health", timeout=2)
+                r = httpx.get(f"{base}/health", timeout=2)
                 if r.status_code == 200:
                     health = r.json()
                     break
             except httpx.TransportError:
                 pass
             time.sleep(0.2)
-        assert health is not None, log.read_text()[-4000:]
-        assert health["status"] == "ok" and health["auth"] is False
+        yield base, health, log
     finally:
         if proc.poll() is None:
             proc.send_signal(signal.SIGTERM)
@@ -258,6 +262,12 @@ def test_tmoc_serve_answers_health(venv):
             os.killpg(proc.pid, signal.SIGKILL)      # Ray's helpers share the group
         except (ProcessLookupError, PermissionError):
             pass
+
+
+def test_tmoc_serve_answers_health(venv):
+    with served(venv, "serve") as (_, health, log):
+        assert health is not None, log.read_text()[-4000:]
+        assert health["status"] == "ok" and health["auth"] is False
 
 
 # -- a domain plugin from outside the package (issue 13) ----------------------------------
@@ -363,23 +373,8 @@ def test_the_chute_learns_its_friction_with_tmoc_run(with_chute):
 
 
 def test_the_chute_runs_over_http(with_chute):
-    port = _free_port()
-    log = with_chute["cwd"] / "serve-chute.log"
-    with open(log, "w") as fh:
-        proc = subprocess.Popen([with_chute["tmoc"], "serve", "--port", str(port), "--db",
-                                 str(with_chute["cwd"] / "chute.sqlite"), "--log-level", "warning"],
-                                cwd=with_chute["cwd"], env=with_chute["env"], stdout=fh,
-                                stderr=subprocess.STDOUT, start_new_session=True)
-    try:
-        base = f"http://127.0.0.1:{port}"
-        deadline = time.monotonic() + 120
-        while time.monotonic() < deadline and proc.poll() is None:
-            try:
-                if httpx.get(f"{base}/health", timeout=2).status_code == 200:
-                    break
-            except httpx.TransportError:
-                pass
-            time.sleep(0.2)
+    with served(with_chute, "serve-chute") as (base, health, log):
+        assert health is not None, log.read_text()[-4000:]
         bad = httpx.post(f"{base}/v1/tasks", json={"domain": "chute", "truth": {"friction": 5.0}}, timeout=30)
         assert bad.status_code == 422 and "friction" in bad.text, bad.text
         r = httpx.post(f"{base}/v1/tasks", timeout=30, json={
@@ -397,14 +392,3 @@ def test_the_chute_runs_over_http(with_chute):
         assert view["spec"]["domain"] == "chute" and view["progress"]["episodes_done"] == 2
         post = view["latest"]["posterior"]["properties"]["friction"]
         assert 0.15 <= post["mean"] <= 0.75 and post["std"] < 0.17, post
-    finally:
-        if proc.poll() is None:
-            proc.send_signal(signal.SIGTERM)
-            try:
-                proc.wait(40)
-            except subprocess.TimeoutExpired:
-                pass
-        try:
-            os.killpg(proc.pid, signal.SIGKILL)
-        except (ProcessLookupError, PermissionError):
-            pass
