@@ -128,6 +128,11 @@ class RunConfig(BaseModel):
     # ContextFailure), e.g. "stack:3" (stacks onto 3 or more blocks). None: no such gap.
     # Simulated realities only: a robot session has no such field.
     reality_fail: str | None = Field(None, max_length=64)
+    # The physics engines (issue 27; sim_workers/engines): the particle worlds' and the
+    # simulated reality's. None is the default engine (pybullet where it is installed, else
+    # MuJoCo); the two differ for a run whose simulator is not its reality.
+    engine: Literal["pybullet", "mujoco"] | None = None
+    reality_engine: Literal["pybullet", "mujoco"] | None = None
     costs: Costs = Costs()
     shards: int | None = Field(None, ge=0, le=4096)
     # The hidden truth by the names of L (`tmoc domains`), e.g. {"size": 0.04, "density":
@@ -191,7 +196,7 @@ class RunConfig(BaseModel):
     @property
     def scene(self) -> Scene:
         """The run's scene as one value (domain, block count, options)."""
-        return Scene.of(self.domain, self.n_blocks, self.options)
+        return Scene.of(self.domain, self.n_blocks, self.options, self.engine)
 
     def truth_values(self) -> dict[str, float]:
         """The hidden truth by name (size from `true_size` where L has a size; the rest as
@@ -199,6 +204,19 @@ class RunConfig(BaseModel):
         if not self._size_in_L:
             return dict(self.truth)
         return {**self.truth, "size": float(self.true_size)}
+
+    @model_validator(mode="after")
+    def _engines_are_installed(self) -> "RunConfig":
+        from sim_workers.engines import EngineError, check_engine
+
+        for field in ("engine", "reality_engine"):
+            value = getattr(self, field)
+            if value is not None:
+                try:
+                    check_engine(value, field)
+                except EngineError as exc:
+                    raise ValueError(str(exc)) from None
+        return self
 
     @model_validator(mode="after")
     def _reality_fail_is_a_context(self) -> "RunConfig":

@@ -24,7 +24,8 @@ def reality_for(config: RunConfig, session: Session) -> SimulatedReality:
         truth = session.domain.true_properties(config.sizes_variation)
         truth["block_sizes"] = truth["block_sizes"] * (config.true_size / session.domain.spec.true_size)
     failure = None if config.reality_fail is None else ContextFailure.parse(config.reality_fail)
-    return SimulatedReality(config.domain, domain_options(config), truth, failure=failure,
+    engine = {"engine": config.reality_engine} if config.reality_engine else {}
+    return SimulatedReality(config.domain, {**domain_options(config), **engine}, truth, failure=failure,
                             context_fn=session.task.context_of)
 
 

@@ -44,6 +44,9 @@ class PhysicsDomain(abc.ABC):
     # domain that reads none pays nothing.
     logs_sensors: ClassVar[bool] = False
     probe_actions: ClassVar[tuple[str, ...]] = ()   # what `tmoc probe` can try in this domain
+    # The engine this domain's worlds are built in (``sim_workers.engines``): set by
+    # ``sim_workers.domains.load(..., engine=)``; None is the default engine.
+    engine: str | None = None
 
     # -- the objects and their unknown properties L -------------------------------------
     @property

@@ -73,18 +73,22 @@ class Scene:
     domain: str
     n_blocks: int
     options: tuple[tuple[str, Any], ...] = ()
+    engine: str | None = None        # the particle worlds' engine (None: the default)
 
     @classmethod
-    def of(cls, domain: str, n_blocks: int, options: Mapping | None = None) -> "Scene":
-        return cls(str(domain), int(n_blocks), tuple(sorted(dict(options or {}).items())))
+    def of(cls, domain: str, n_blocks: int, options: Mapping | None = None,
+           engine: str | None = None) -> "Scene":
+        return cls(str(domain), int(n_blocks), tuple(sorted(dict(options or {}).items())), engine)
 
     @property
     def option_dict(self) -> dict:
         return dict(self.options)
 
     def physics_options(self) -> dict:
-        """What the physics half is built with: the object count and the options."""
-        return {"n_blocks": self.n_blocks, **self.option_dict}
+        """What the physics half is built with: the object count, the options and the
+        engine (where one is chosen)."""
+        engine = {"engine": self.engine} if self.engine else {}
+        return {"n_blocks": self.n_blocks, **self.option_dict, **engine}
 
     def physics(self) -> "PhysicsDomain":
         """The physics half of this scene."""
@@ -196,9 +200,11 @@ def is_registered(name: str) -> bool:
     return True
 
 
-def load(name: str, **options) -> "PhysicsDomain":
-    """The physics half of domain `name`, built with `options` (e.g. n_blocks=8)."""
+def load(name: str, engine: str | None = None, **options) -> "PhysicsDomain":
+    """The physics half of domain `name`, built with `options` (e.g. n_blocks=8); its
+    worlds in `engine` (``sim_workers.engines``; None: the default engine)."""
     from .base import PhysicsDomain, missing_members
+    from .engines import check_engine
 
     s = spec(name)
     factory = _REGISTRY.get(s.name) or import_string(s.physics)
@@ -209,4 +215,6 @@ def load(name: str, **options) -> "PhysicsDomain":
         missing = ", ".join(missing_members(type(domain)))
         raise ValueError(f"domain {s.name!r}: its physics half {type(domain).__name__} does not "
                          f"implement sim_workers.base.PhysicsDomain (missing: {missing})")
+    if engine is not None:
+        domain.engine = check_engine(engine)
     return domain

@@ -1,20 +1,24 @@
 """A grounded world: one physics simulation of the scene under one hypothesis L_i.
 
-The world owns one pybullet DIRECT client. ``reset`` rebuilds the scene in that client
-from scratch (``resetSimulation``) for the given properties and places it at an observed
-configuration. Rebuilding costs ~2 ms, but it is the only way we found to make a result
-depend on nothing but (configuration, properties, trajectory): pybullet's ``restoreState``
-and pose resets leave contact caches and broadphase history behind, and results then
-drift by ~1e-13 with the world's past (tests/sim_workers/test_determinism.py shows the
-rebuilt world is bit-identical to a fresh process). ``resetSimulation`` frees every
-shape, so memory stays flat over any number of resets.
+``GroundedWorld`` is what the shards, the simulated reality and the probes drive: reset to
+an observed configuration under some properties, follow a trajectory, observe. What that
+costs in an engine lives in its subclass (``sim_workers.engines``): ``PybulletWorld`` (the
+default) owns one pybullet DIRECT client, ``MujocoWorld`` one MuJoCo model and data.
+``GroundedWorld(domain, engine="mujoco")`` builds the engine's world.
+
+Every engine keeps one guarantee: ``reset`` makes a result depend on nothing but
+(configuration, properties, trajectory). pybullet's ``restoreState`` and pose resets
+leave contact caches and broadphase history behind (results drift by ~1e-13 with the
+world's past), so its world rebuilds the scene per reset (``resetSimulation``, ~2 ms);
+MuJoCo keeps no state outside ``MjData``, so its world resets the data
+(tests/sim_workers/test_determinism.py and test_engines.py check both against a fresh
+process).
 """
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
 
 import numpy as np
-import pybullet as pb
 
 from . import reach
 from . import trajectory as tr
@@ -54,36 +58,92 @@ class Outcome:
 
 
 class GroundedWorld:
-    """One pybullet DIRECT client holding one scene of `domain`.
+    """One physics simulation of `domain`'s scene in one engine (``engine``: pybullet or
+    mujoco; None: the domain's ``engine``, else the default).
 
     With ``leave_out`` (particle worlds: ``sim_workers.shard.Shard``), the first action after
     a reset, if its kind is one of the domain's ``leave_out_actions``, runs without the
-    bodies it cannot reach (``sim_workers.reach``), guarded: if a kept body comes near a
-    left-out one, the action is run again in the full world. After such an action the world
-    needs a reset; a world that runs several actions in a row (the simulated robot of
+    bodies it cannot reach (``sim_workers.reach``; pybullet only, where contacts with far
+    bodies cost most of a step), guarded: if a kept body comes near a left-out one, the
+    action is run again in the full world. After such an action the world needs a reset; a
+    world that runs several actions in a row (the simulated robot of
     ``coordinator.reality``, the physics tests) is built without ``leave_out``.
     """
 
-    def __init__(self, domain: Domain, *, leave_out: bool = False) -> None:
+    engine = ""
+
+    def __new__(cls, domain: Domain, *, leave_out: bool = False, engine: str | None = None):
+        if cls is GroundedWorld:
+            from .engines import world_class
+            cls = world_class(engine or domain.engine)
+        return super().__new__(cls)
+
+    def __init__(self, domain: Domain, *, leave_out: bool = False, engine: str | None = None) -> None:
         self.domain = domain
-        self.client = pb.connect(pb.DIRECT)
-        self.handles = None
         self.props: dict | None = None
-        self._sent_pose = self._sent_q = None
-        self._weight: float | None = None
         self.leave_out = leave_out
         self._placed: Configuration | None = None      # as reset placed it (for a re-run)
         self._absent: dict[int, np.ndarray] = {}       # object index -> its pose, left out
         self._fresh = False                            # no action since the last reset
         self.reruns = 0                                # actions the guard sent to the full world
         self.settle_s = float(domain.settle_s)
+        self._connect()
+
+    # -- what an engine provides ---------------------------------------------------------
+    def _connect(self) -> None:
+        """Open the engine (called once, by the constructor)."""
+        raise NotImplementedError
+
+    def close(self) -> None:
+        raise NotImplementedError
+
+    def _rebuild(self, props: dict) -> None:
+        """The scene under `props`, as if built in a fresh process."""
+        raise NotImplementedError
+
+    def _apply(self, config: Configuration) -> None:
+        """Put the objects and the gripper at `config`, at rest."""
+        raise NotImplementedError
+
+    def _set_gripper(self, target: np.ndarray, reset: bool = False) -> None:
+        """Command the gripper to `target` (x, y, z, yaw, opening[, grip_force, force_limit]).
+
+        Without the effort entries the scene's fixed grip force and wrist limit apply. A
+        force limit below the scene's is a force-limited motion (a push): the arm then
+        carries the gripper's own weight by gravity compensation, as an arm controller
+        does, so that the limit caps what the wrist exerts on the world."""
+        raise NotImplementedError
+
+    def observe(self) -> Configuration:
+        """The current configuration (gripper tool point, opening, object poses)."""
+        raise NotImplementedError
+
+    def at_rest(self) -> bool:
+        raise NotImplementedError
+
+    def _step(self) -> None:
+        raise NotImplementedError
+
+    def _wrist_force(self) -> tuple[float, float, float]:
+        """What carries the gripper exerts on it (N, world frame): gripper plus load."""
+        raise NotImplementedError
+
+    def _opening(self) -> float:
+        raise NotImplementedError
+
+    def _tool_position(self) -> np.ndarray:
+        """Where the tool point is (x, y, z)."""
+        raise NotImplementedError
+
+    def _commanded_tool(self) -> np.ndarray:
+        """Where the tool point was last commanded to (x, y, z)."""
+        raise NotImplementedError
+
+    def _leave_out(self, targets: np.ndarray):
+        """Remove the objects the action cannot reach; a guard, or None (nothing left out)."""
+        return None
 
     # -- lifecycle ---------------------------------------------------------------------
-    def close(self) -> None:
-        if self.client is not None and pb.isConnected(physicsClientId=self.client):
-            pb.disconnect(physicsClientId=self.client)
-        self.client = None
-
     def __enter__(self) -> "GroundedWorld":
         return self
 
@@ -94,9 +154,7 @@ class GroundedWorld:
     def reset(self, config: Configuration, props: dict, *, place: bool = True) -> Configuration:
         """Rebuild the scene under `props` and put it in `config` (re-grounded if `place`)."""
         props = self.domain.properties(props)
-        pb.resetSimulation(physicsClientId=self.client)
-        self.handles = self.domain.build(self.client, props)
-        self._weight = None
+        self._rebuild(props)
         self.props = props
         placed = self.domain.place(config, props) if place else config
         self._absent = {}
@@ -104,85 +162,8 @@ class GroundedWorld:
         self._placed, self._fresh = placed, True
         return placed
 
-    def _apply(self, config: Configuration) -> None:
-        h, c = self.handles, self.client
-        for i, (body, pose) in enumerate(zip(h.objects, config.objects)):
-            if i in self._absent:
-                self._absent[i] = np.array(pose, dtype=np.float64)
-                continue
-            pb.resetBasePositionAndOrientation(body, pose[:3], pose[3:], physicsClientId=c)
-            pb.resetBaseVelocity(body, [0, 0, 0], [0, 0, 0], physicsClientId=c)
-        self._set_gripper(config.robot, reset=True)
-
-    def _set_gripper(self, target: np.ndarray, reset: bool = False) -> None:
-        """Command the gripper to `target` (x, y, z, yaw, opening[, grip_force, force_limit]).
-
-        Without the effort entries the scene's fixed grip force and wrist limit apply. A
-        force limit below the scene's is a force-limited motion (a push): the arm then
-        carries the gripper's own weight by gravity compensation, as an arm controller
-        does, so that the limit caps what the wrist exerts on the world (a fixed
-        constraint's ``maxForce`` caps each of its rows, the vertical one included)."""
-        h, c = self.handles, self.client
-        pose = tuple(float(v) for v in target[:4])
-        q = float(target[4]) / 2.0 + h.finger_inner
-        grip = float(target[5]) if len(target) > 5 else h.grip_force
-        limit = float(target[6]) if len(target) > 6 else self.domain.base_max_force
-        if reset:
-            self._sent_pose = self._sent_q = None
-            pos = [pose[0], pose[1], pose[2] + h.palm_offset]
-            pb.resetBasePositionAndOrientation(h.gripper, pos, quat_from_yaw(pose[3]), physicsClientId=c)
-            pb.resetBaseVelocity(h.gripper, [0, 0, 0], [0, 0, 0], physicsClientId=c)
-            for j in h.fingers:
-                pb.resetJointState(h.gripper, j, q, 0.0, physicsClientId=c)
-        # Commands are sent only when they change: they hold until replaced, and two
-        # pybullet calls per step are a fifth of a step's cost.
-        if (pose, limit) != self._sent_pose:
-            pb.changeConstraint(h.base_constraint, jointChildPivot=[pose[0], pose[1], pose[2] + h.palm_offset],
-                                jointChildFrameOrientation=quat_from_yaw(pose[3]),
-                                maxForce=limit, physicsClientId=c)
-            self._sent_pose = (pose, limit)
-        if (q, grip) != self._sent_q:
-            pb.setJointMotorControlArray(h.gripper, list(h.fingers), pb.POSITION_CONTROL,
-                                         targetPositions=[q, q], forces=[grip] * 2,
-                                         physicsClientId=c)
-            self._sent_q = (q, grip)
-        if limit < self.domain.base_max_force:
-            # External forces last one step: applied anew before every step.
-            pb.applyExternalForce(h.gripper, -1, [0.0, 0.0, self._gripper_weight()], [0.0, 0.0, 0.0],
-                                  pb.LINK_FRAME, physicsClientId=c)
-
-    def _gripper_weight(self) -> float:
-        """The gripper's weight (N): palm and fingers, read from the built bodies."""
-        if self._weight is None:
-            h, c = self.handles, self.client
-            mass = sum(pb.getDynamicsInfo(h.gripper, link, physicsClientId=c)[0] for link in (-1, *h.fingers))
-            self._weight = mass * -pb.getPhysicsEngineParameters(physicsClientId=c)["gravityAccelerationZ"]
-        return self._weight
-
-    def observe(self) -> Configuration:
-        """The current configuration (gripper tool point, opening, object poses)."""
-        h, c = self.handles, self.client
-        pos, orn = pb.getBasePositionAndOrientation(h.gripper, physicsClientId=c)
-        q = [s[0] for s in pb.getJointStates(h.gripper, list(h.fingers), physicsClientId=c)]
-        opening = 2.0 * (np.mean(q) - h.finger_inner)
-        robot = np.array([pos[0], pos[1], pos[2] - h.palm_offset, yaw_of(np.array(orn)), opening])
-        objects = np.array([self._absent[i] if i in self._absent else
-                            np.concatenate(pb.getBasePositionAndOrientation(b, physicsClientId=c))
-                            for i, b in enumerate(h.objects)])
-        return Configuration(robot, objects)
-
     def symbolic_state(self) -> frozenset[str]:
         return self.domain.symbolic_state(self.observe())
-
-    def at_rest(self) -> bool:
-        c = self.client
-        for i, b in enumerate(self.handles.objects):
-            if i in self._absent:
-                continue
-            lin, ang = pb.getBaseVelocity(b, physicsClientId=c)
-            if max(map(abs, lin)) > REST_LINEAR or max(map(abs, ang)) > REST_ANGULAR:
-                return False
-        return True
 
     # -- acting -------------------------------------------------------------------------
     def skip_to(self, trajectory: np.ndarray, start_time: float) -> None:
@@ -213,8 +194,7 @@ class GroundedWorld:
         early once every object is at rest after the trajectory has ended.
         """
         traj = tr.validate(trajectory)
-        h = self.handles
-        if h is None:
+        if self.props is None:
             raise RuntimeError("world: reset() before execute()")
         if self._absent:
             raise RuntimeError("world: bodies were left out of the last action; reset() first")
@@ -222,7 +202,7 @@ class GroundedWorld:
         self._fresh = False
         if start_time > 0.0:
             self.skip_to(traj, start_time)
-        dt = h.time_step
+        dt = self.time_step
         t_end = float(traj[-1, 0])
         settle = self.settle_s if max_settle_s is None else max_settle_s
         times = start_time + dt * np.arange(1, int(np.ceil((t_end - start_time + settle) / dt)) + 1)
@@ -247,29 +227,9 @@ class GroundedWorld:
         guard's cost)."""
         return action.partition("(")[0] in self.domain.leave_out_actions
 
-    def _leave_out(self, targets: np.ndarray) -> reach.Guard | None:
-        """Remove the objects the action cannot reach (``sim_workers.reach``); None when
-        every object is within reach."""
-        h, c = self.handles, self.client
-        boxes = np.array([reach.body_box(b, c) for b in h.objects])
-        tool = np.array(self._sent_pose[0][:3])
-        opening = float(self._sent_q[0] - h.finger_inner) * 2.0
-        keep = reach.kept_objects(boxes, reach.body_box(h.gripper, c), tool, targets[:, :3],
-                                  widening=float(targets[:, 4].max()) - opening)
-        if keep.all():
-            return None
-        kept = [int(i) for i in np.flatnonzero(keep)]
-        for i in np.flatnonzero(~keep):
-            self._absent[int(i)] = np.concatenate(pb.getBasePositionAndOrientation(h.objects[i], physicsClientId=c))
-            pb.removeBody(h.objects[i], physicsClientId=c)
-        bodies = [h.objects[i] for i in kept]
-        start = np.array([pb.getBasePositionAndOrientation(b, physicsClientId=c)[0] for b in bodies]).reshape(-1, 3)
-        return reach.Guard(c, h.gripper, bodies, reach.radii(start, boxes[kept]), boxes[~keep])
-
     def _run(self, action: str, times: np.ndarray, targets: np.ndarray, t_end: float,
-             watch: reach.Guard | None) -> tuple[Outcome | None, int]:
+             watch) -> tuple[Outcome | None, int]:
         """Step through `targets`; (None, steps) as soon as `watch` trips."""
-        h = self.handles
         steps = 0
         # A domain that reads sensors during the action says so; the others pay nothing.
         logging = bool(self.domain.logs_sensors) and bool(self.domain.senses(action))
@@ -280,10 +240,10 @@ class GroundedWorld:
             if guarded:
                 target, was_guarded, offset = self._guard(target, was_guarded, offset)
             self._set_gripper(target)
-            pb.stepSimulation(physicsClientId=self.client)
+            self._step()
             steps += 1
             if logging:
-                force.append(pb.getConstraintState(h.base_constraint, physicsClientId=self.client)[:3])
+                force.append(self._wrist_force())
                 opening.append(self._opening())
             if watch is not None and k % reach.GUARD_EVERY == 0 and watch.tripped():
                 return None, steps
@@ -309,17 +269,11 @@ class GroundedWorld:
         would snap the gripper to the reference and through whatever held it back)."""
         now_guarded = target[6] < self.domain.base_max_force
         if was_guarded and not now_guarded:
-            pos, _ = pb.getBasePositionAndOrientation(self.handles.gripper, physicsClientId=self.client)
-            offset = np.array([pos[0], pos[1], pos[2] - self.handles.palm_offset]) - self._sent_pose[0][:3]
+            offset = self._tool_position() - self._commanded_tool()
         if np.any(offset):
             target = target.copy()
             target[:3] += offset
         return target, now_guarded, offset
-
-    def _opening(self) -> float:
-        h = self.handles
-        q = [s[0] for s in pb.getJointStates(h.gripper, list(h.fingers), physicsClientId=self.client)]
-        return 2.0 * (float(np.mean(q)) - h.finger_inner)
 
 
 def act(world: GroundedWorld, domain, config: Configuration, believed: dict, action: str,

@@ -32,7 +32,6 @@ from __future__ import annotations
 import math
 
 import numpy as np
-import pybullet as pb
 
 CONTACT_THRESHOLD = 0.02     # m, Bullet's default contact-breaking threshold
 TOUCH = 0.005                # m: boxes this close count as touching (resting contact)
@@ -44,6 +43,8 @@ APPROACH = 0.001             # m nearer than at the start: a kept body moved tow
 
 def body_box(body: int, client: int) -> np.ndarray:
     """(6,) lo xyz, hi xyz of a body and all its links."""
+    import pybullet as pb     # (the pybullet world's; MuJoCo worlds leave nothing out)
+
     boxes = [pb.getAABB(body, link, physicsClientId=client)
              for link in range(-1, pb.getNumJoints(body, physicsClientId=client))]
     lo = np.min([b[0] for b in boxes], axis=0)
@@ -99,6 +100,7 @@ class Guard:
 
     def __init__(self, client: int, gripper: int, bodies: list[int], radii: np.ndarray,
                  left_out: np.ndarray) -> None:
+        import pybullet as pb
         self.client, self.bodies = client, bodies
         self.radii = [float(r) for r in radii]
         self.left_out = [tuple(b) for b in left_out.tolist()]
@@ -107,6 +109,7 @@ class Guard:
 
     def _clearance(self) -> list[float]:
         """The gripper's box gap, then each kept object's ball gap, to the nearest left-out box."""
+        import pybullet as pb
         c, out = self.client, []
         aabbs = [pb.getAABB(b, link, physicsClientId=c) for b, link in self.gripper]
         lo = [min(a[0][k] for a in aabbs) for k in range(3)]

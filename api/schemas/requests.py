@@ -70,6 +70,14 @@ def _spec_fields(exclude: set[str], max_particles: int, max_episodes: int, max_s
             continue
         fields[name] = (info.annotation, info)
     fields["costs"] = (StrictCosts, Field(default_factory=StrictCosts))
+    # The engines this server has installed (a schema-valid request is never refused for one).
+    from sim_workers.engines import ENGINES, default_engine, installed
+    have = tuple(e for e in ENGINES if installed(e))
+    for name, whose in (("engine", "the particle worlds'"), ("reality_engine", "the simulated reality's")):
+        if name not in exclude:
+            fields[name] = (Literal[have] | None, Field(  # type: ignore[valid-type]
+                None, description=f"{whose} physics engine, one of: {', '.join(have)} "
+                                  f"(null: this server's default, {default_engine()})"))
     if "domain" not in exclude:
         # an enum of the domains registered when the app is built, so the OpenAPI schema
         # says which names are valid (a schema-valid request is never refused for its domain)
@@ -209,7 +217,8 @@ def task_spec_model(max_particles: int, max_episodes: int, max_steps: int = 1000
 def session_create_model(max_particles: int, max_episodes: int, max_steps: int = 1000) -> Any:
     """An external-robot session: the learning settings plus, optionally, the first
     episode's initial observation. The truth (`true_size`) is the robot's world, not a field."""
-    fields = _spec_fields({"true_size", "known_properties", "reality_fail"}, max_particles, max_episodes,
+    fields = _spec_fields({"true_size", "known_properties", "reality_fail", "reality_engine"},
+                          max_particles, max_episodes,
                           max_steps)
     fields["reality"] = (Literal["external"], Field(
         "external", description="the robot that posts observations is the real world"))

@@ -18,6 +18,8 @@ def register(sub) -> None:
     p.add_argument("name", metavar="NAME", help="a registered domain (see tmoc domains)")
     p.add_argument("--no-ray", action="store_true",
                    help="skip the two-Ray-actor part of the determinism check")
+    p.add_argument("--engine", default=None, metavar="pybullet|mujoco",
+                   help="the physics engine the worlds are built in (default: pybullet where installed)")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.set_defaults(func=main)
 
@@ -29,14 +31,20 @@ def main(args) -> int:
     known = names()
     if args.name not in known:
         raise UsageError(f"NAME: unknown domain {args.name!r} (known: {', '.join(known)})")
-    results = check_domain(args.name, ray_actors=not args.no_ray)
+    from sim_workers.engines import EngineError, check_engine
+
+    try:
+        engine = check_engine(args.engine, "--engine")
+    except EngineError as exc:
+        raise UsageError(str(exc)) from None
+    results = check_domain(args.name, ray_actors=not args.no_ray, engine=engine)
     failed = [r for r in results if not r.ok]
     if args.json:
-        print(json.dumps({"domain": args.name, "ok": not failed,
+        print(json.dumps({"domain": args.name, "engine": engine, "ok": not failed,
                           "checks": [r.to_dict() for r in results]}, indent=2))
     else:
         for r in results:
             print(f"{'ok  ' if r.ok else 'FAIL'} {r.name:<20} {r.detail}  ({r.seconds:.2f} s)")
-        print(f"{args.name}: {len(results) - len(failed)}/{len(results)} checks passed"
+        print(f"{args.name} ({engine}): {len(results) - len(failed)}/{len(results)} checks passed"
               + (f"; failed: {', '.join(r.name for r in failed)}" if failed else ""))
     return 1 if failed else 0

@@ -58,6 +58,11 @@ def register(sub) -> None:
     p.add_argument("--probe-seed", type=int, default=0, help="seed of the T* probes")
     p.add_argument("--checkpoint-s", type=float, default=60.0,
                    help="seconds between a running run's checkpoints (kept for --resume)")
+    p.add_argument("--engine", default=None, metavar="pybullet|mujoco",
+                   help="the particle worlds' physics engine (default: pybullet where installed, else mujoco)")
+    p.add_argument("--reality-engine", default=None, metavar="pybullet|mujoco",
+                   help="the simulated reality's engine (and T*'s probes); another than --engine's is "
+                        "a simulator that is not reality")
     p.add_argument("--ray-address", default=None, help="join a running Ray cluster")
     p.add_argument("--out", default="runs/experiments", help="output directory DIR")
     p.add_argument("--resume", action="store_true", help="reuse the finished runs in DIR/runs")
@@ -73,6 +78,18 @@ def _int_at_least(value, flag: str, low: int, high: int | None = None) -> int:
         rng = f">= {low}" if high is None else f"in [{low}, {high}]"
         raise UsageError(f"{flag}: must be {rng} (got {value})")
     return value
+
+
+def _engine(value: str | None, flag: str) -> str | None:
+    """A known, installed engine, or None (the default); UsageError naming `flag`."""
+    if value is None:
+        return None
+    from sim_workers.engines import EngineError, check_engine
+
+    try:
+        return check_engine(value, flag)
+    except EngineError as exc:
+        raise UsageError(str(exc)) from None
 
 
 def spec_from_args(args):
@@ -125,7 +142,9 @@ def spec_from_args(args):
                    particle_budget=args.particle_budget,
                    min_particles=_int_at_least(args.min_particles, "--min-particles", 1),
                    truths=(ex.prior_truths(args.domain, runs, args.seed, ex.EXPERIMENTS.index(args.name))
-                           if across else ()))
+                           if across else ()),
+                   engine=_engine(args.engine, "--engine"),
+                   reality_engine=_engine(args.reality_engine, "--reality-engine"))
     try:       # every run's config must validate before anything starts
         for k in range(len(spec.settings)):
             ex.run_config(spec, k, 0)

@@ -62,6 +62,8 @@ def register(subparsers) -> None:
     p.add_argument("--option", action="append", default=None, metavar="KEY=VALUE", dest="options",
                    help="a domain option of the probed world, repeatable (`tmoc domains`), e.g. "
                         "--option true_friction=0.6 for the chute, whose truth is not a size")
+    p.add_argument("--engine", default=None, metavar="pybullet|mujoco",
+                   help="the physics engine of the trials (default: pybullet where installed, else mujoco)")
     p.add_argument("--trials", type=int, default=20, metavar="N", help="number of trials (default 20)")
     p.add_argument("--seed", type=int, default=0, metavar="SEED", help="random seed (default 0)")
     p.add_argument("--json", action="store_true", help="print one JSON object instead of a line")
@@ -131,6 +133,13 @@ def run(args: argparse.Namespace) -> int:
                 raise UsageError(f"{flag}: the {args.domain} domain has no block density to set")
     if args.true_density is not None:
         options["density"] = args.true_density
+    from sim_workers.engines import EngineError, check_engine
+
+    try:
+        engine = check_engine(args.engine, "--engine")
+    except EngineError as exc:
+        raise UsageError(str(exc)) from None
+    options["engine"] = engine
     try:
         result = probe(args.action, true_size, believed, load_k=args.load, trials=args.trials,
                        seed=args.seed, n_blocks=n_blocks, domain=args.domain, options=options,
@@ -140,7 +149,8 @@ def run(args: argparse.Namespace) -> int:
             raise UsageError(f"--believed-density: {str(exc).split(': ', 1)[1]}") from None
         raise
     if args.json:
-        out = {"domain": args.domain, **result.to_dict(), "seed": args.seed, "n_blocks": n_blocks}
+        out = {"domain": args.domain, **result.to_dict(), "seed": args.seed, "n_blocks": n_blocks,
+               "engine": engine}
         print(json.dumps(out, sort_keys=True))
         return 0
     load = f", load {result.load}" if args.action != "pickup" else ""
@@ -152,5 +162,6 @@ def run(args: argparse.Namespace) -> int:
         dens += " kg/m^3"
     print(f"{args.domain} {args.action}: {result.successes}/{result.trials} succeeded, "
           f"success rate {result.success_rate:.3f} (true size {true_size:g} m, "
-          f"believed {believed:g} m{load}{dens}, seed {args.seed})")
+          f"believed {believed:g} m{load}{dens}, seed {args.seed}"
+          f"{', engine ' + engine if args.engine else ''})")
     return 0

@@ -19,7 +19,8 @@ _FLAG_FIELDS = {"domain": "--domain", "agent": "--agent", "particles": "--partic
                 "sizes_variation": "--sizes-variation", "likelihood": "--likelihood",
                 "max_steps": "--max-steps", "shards": "--shards", "truth": "--truth",
                 "options": "--option", "particle_budget": "--particle-budget",
-                "min_particles": "--min-particles", "reality_fail": "--reality-fail"}
+                "min_particles": "--min-particles", "reality_fail": "--reality-fail",
+                "engine": "--engine", "reality_engine": "--reality-engine"}
 
 
 def register(sub) -> None:
@@ -56,6 +57,11 @@ def register(sub) -> None:
     p.add_argument("--reality-fail", default=None, metavar="ACTION:K",
                    help="a reality gap the particle worlds do not know: every ACTION in a T context "
                         ">= K fails in the simulated reality only, e.g. stack:3")
+    p.add_argument("--engine", default=None, metavar="pybullet|mujoco",
+                   help="the particle worlds' physics engine (default: pybullet where installed, else mujoco)")
+    p.add_argument("--reality-engine", default=None, metavar="pybullet|mujoco",
+                   help="the simulated reality's physics engine (default: as --engine's default); "
+                        "another engine than --engine's is a simulator that is not reality")
     p.add_argument("--shards", type=int, default=None, help="shard actors (default: one per CPU)")
     p.add_argument("--ray-address", default=None, help="join a running Ray cluster")
     p.add_argument("--out", default="runs/latest", help="output directory")

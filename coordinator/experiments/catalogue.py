@@ -162,6 +162,8 @@ class Spec:
     particle_budget: str = "fixed"
     min_particles: int = 8
     truths: tuple[float, ...] = ()        # run r's hidden size (empty: true_size for every run)
+    engine: str | None = None             # the particle worlds' engine (None: the default)
+    reality_engine: str | None = None     # the simulated reality's (None: the default)
 
     def to_dict(self) -> dict:
         out = {"name": self.name, "runs": self.runs, "episodes": self.episodes,
@@ -175,6 +177,9 @@ class Spec:
             out["particle_budget"], out["min_particles"] = self.particle_budget, self.min_particles
         if self.truths:
             out["truths"] = list(self.truths)
+        for key in ("engine", "reality_engine"):      # (summaries from before engines stay valid)
+            if getattr(self, key) is not None:
+                out[key] = getattr(self, key)
         return out
 
     def run_truth(self, r: int) -> float:
@@ -237,6 +242,9 @@ def run_config(spec: Spec, k: int, r: int) -> RunConfig:
               "seed": run_seed(spec.seed, EXPERIMENTS.index(spec.name), k, r),
               "particle_budget": spec.particle_budget, "min_particles": spec.min_particles}
     fields.update(s.overrides)
+    for key in ("engine", "reality_engine"):
+        if getattr(spec, key) is not None:
+            fields.setdefault(key, getattr(spec, key))
     if not _has_size(spec.domain):      # a domain without a size in L takes its truth by name
         fields.pop("true_size")
     if not AGENT_SPECS[fields["agent"]].learn_belief:     # tmp_rl, toep

@@ -48,6 +48,8 @@ def t_star_params(spec: Spec, n_blocks: int = 8, setting: Setting | None = None)
         params["options"] = {"density": WEIGHTS_TRUE_DENSITY, "force_from_mass": True}
     if setting is not None and setting.t_star:
         params.update(setting.t_star)
+    if spec.reality_engine is not None:     # T* is reality's: probed in its engine
+        params["options"] = {**params.get("options", {}), "engine": spec.reality_engine}
     return params
 
 

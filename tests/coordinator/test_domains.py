@@ -17,6 +17,7 @@ from sim_workers import domains as physics_registry
 from sim_workers.container import ContainerDomain
 
 NAMES = domains.names()
+ENGINES = ("pybullet", "mujoco")
 
 
 def test_the_built_in_domains_are_registered():
@@ -35,9 +36,10 @@ def test_a_built_in_whose_half_fails_to_import_is_an_error(monkeypatch):
 
 
 @pytest.mark.slow          # the session's Ray (the --no-ray checks stay fast, below)
+@pytest.mark.parametrize("engine", ENGINES)
 @pytest.mark.parametrize("name", NAMES)
-def test_every_domain_passes_the_conformance_checks(name, ray_cluster):
-    results = check_domain(name)
+def test_every_domain_passes_the_conformance_checks(name, engine, ray_cluster):
+    results = check_domain(name, engine=engine)
     assert [r.name for r in results] == list(CHECKS)
     failed = {r.name: r.detail for r in results if not r.ok}
     assert not failed, failed

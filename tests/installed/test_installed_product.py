@@ -300,7 +300,7 @@ def test_the_plugin_passes_check_domain_with_ray_actors(with_plugin):
     assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
     from coordinator.conformance import CHECKS
 
-    assert f"toy_tray: {len(CHECKS)}/{len(CHECKS)} checks passed" in proc.stdout
+    assert f"toy_tray (pybullet): {len(CHECKS)}/{len(CHECKS)} checks passed" in proc.stdout
     assert "ok   y_batch" in proc.stdout          # the plugin's vectorised Y, bit for bit
 
 
@@ -334,7 +334,7 @@ def test_the_chute_passes_check_domain_from_a_fresh_venv(with_chute):
     assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
     from coordinator.conformance import CHECKS
 
-    assert f"chute: {len(CHECKS)}/{len(CHECKS)} checks passed" in proc.stdout
+    assert f"chute (pybullet): {len(CHECKS)}/{len(CHECKS)} checks passed" in proc.stdout
     assert "5 values of friction across the prior" in proc.stdout
     found = json.loads(run_in(with_chute, [with_chute["tmoc"], "domains", "--json"]).stdout)["domains"]
     assert found["chute"]["source"] == "plugin (tmoc-chute-domain)"

@@ -17,6 +17,7 @@ import pytest
 
 from sim_workers.domains import load
 from sim_workers.grounded_world import GroundedWorld
+from sim_workers.engines.pybullet_world import PybulletWorld
 from sim_workers.container.probes import loaded_configuration
 from sim_workers.shard import Shard, decode_state, remote_shard
 
@@ -88,7 +89,7 @@ def test_a_world_with_a_past_equals_a_fresh_world(action):
     assert _bits(again) == _bits(expected)
 
 
-class _RePoseOnly(GroundedWorld):
+class _RePoseOnly(PybulletWorld):
     """What reset() must not be: rebuild only when the sizes change, else re-pose the bodies
     (with restoreState of the just-built scene, which is what pybullet offers for this)."""
 

@@ -1,0 +1,156 @@
+"""The pybullet world: a ``GroundedWorld`` in one pybullet DIRECT client (the default engine).
+
+``reset`` rebuilds the scene in the client from scratch (``resetSimulation``, ~2 ms): the
+only way found to make a result depend on nothing but (configuration, properties,
+trajectory), since ``restoreState`` and pose resets leave contact caches and broadphase
+history behind. ``resetSimulation`` frees every shape, so memory stays flat over any
+number of resets. Every call passes ``physicsClientId``: the world owns its client.
+"""
+from __future__ import annotations
+
+import numpy as np
+import pybullet as pb
+
+from .. import reach
+from ..configuration import Configuration, quat_from_yaw, yaw_of
+from ..domains import Domain
+from ..grounded_world import REST_ANGULAR, REST_LINEAR, GroundedWorld
+
+
+class PybulletWorld(GroundedWorld):
+    """One pybullet DIRECT client holding one scene of `domain`."""
+
+    engine = "pybullet"
+
+    def __init__(self, domain: Domain, *, leave_out: bool = False, engine: str | None = None) -> None:
+        self.client = None
+        self.handles = None
+        self._sent_pose = self._sent_q = None
+        self._weight: float | None = None
+        super().__init__(domain, leave_out=leave_out)
+
+    def _connect(self) -> None:
+        self.client = pb.connect(pb.DIRECT)
+
+    def close(self) -> None:
+        if self.client is not None and pb.isConnected(physicsClientId=self.client):
+            pb.disconnect(physicsClientId=self.client)
+        self.client = None
+
+    @property
+    def time_step(self) -> float:
+        return self.handles.time_step
+
+    def _rebuild(self, props: dict) -> None:
+        pb.resetSimulation(physicsClientId=self.client)
+        self.handles = self.domain.build(self.client, props)
+        self._weight = None
+
+    def _apply(self, config: Configuration) -> None:
+        h, c = self.handles, self.client
+        for i, (body, pose) in enumerate(zip(h.objects, config.objects)):
+            if i in self._absent:
+                self._absent[i] = np.array(pose, dtype=np.float64)
+                continue
+            pb.resetBasePositionAndOrientation(body, pose[:3], pose[3:], physicsClientId=c)
+            pb.resetBaseVelocity(body, [0, 0, 0], [0, 0, 0], physicsClientId=c)
+        self._set_gripper(config.robot, reset=True)
+
+    def _set_gripper(self, target: np.ndarray, reset: bool = False) -> None:
+        """See ``GroundedWorld._set_gripper``: a fixed constraint capped at the limit."""
+        h, c = self.handles, self.client
+        pose = tuple(float(v) for v in target[:4])
+        q = float(target[4]) / 2.0 + h.finger_inner
+        grip = float(target[5]) if len(target) > 5 else h.grip_force
+        limit = float(target[6]) if len(target) > 6 else self.domain.base_max_force
+        if reset:
+            self._sent_pose = self._sent_q = None
+            pos = [pose[0], pose[1], pose[2] + h.palm_offset]
+            pb.resetBasePositionAndOrientation(h.gripper, pos, quat_from_yaw(pose[3]), physicsClientId=c)
+            pb.resetBaseVelocity(h.gripper, [0, 0, 0], [0, 0, 0], physicsClientId=c)
+            for j in h.fingers:
+                pb.resetJointState(h.gripper, j, q, 0.0, physicsClientId=c)
+        # Commands are sent only when they change: they hold until replaced, and two
+        # pybullet calls per step are a fifth of a step's cost.
+        if (pose, limit) != self._sent_pose:
+            pb.changeConstraint(h.base_constraint, jointChildPivot=[pose[0], pose[1], pose[2] + h.palm_offset],
+                                jointChildFrameOrientation=quat_from_yaw(pose[3]),
+                                maxForce=limit, physicsClientId=c)
+            self._sent_pose = (pose, limit)
+        if (q, grip) != self._sent_q:
+            pb.setJointMotorControlArray(h.gripper, list(h.fingers), pb.POSITION_CONTROL,
+                                         targetPositions=[q, q], forces=[grip] * 2,
+                                         physicsClientId=c)
+            self._sent_q = (q, grip)
+        if limit < self.domain.base_max_force:
+            # External forces last one step: applied anew before every step.
+            pb.applyExternalForce(h.gripper, -1, [0.0, 0.0, self._gripper_weight()], [0.0, 0.0, 0.0],
+                                  pb.LINK_FRAME, physicsClientId=c)
+
+    def _gripper_weight(self) -> float:
+        """The gripper's weight (N): palm and fingers, read from the built bodies."""
+        if self._weight is None:
+            h, c = self.handles, self.client
+            mass = sum(pb.getDynamicsInfo(h.gripper, link, physicsClientId=c)[0] for link in (-1, *h.fingers))
+            self._weight = mass * -pb.getPhysicsEngineParameters(physicsClientId=c)["gravityAccelerationZ"]
+        return self._weight
+
+    def observe(self) -> Configuration:
+        """The current configuration (gripper tool point, opening, object poses)."""
+        h, c = self.handles, self.client
+        pos, orn = pb.getBasePositionAndOrientation(h.gripper, physicsClientId=c)
+        q = [s[0] for s in pb.getJointStates(h.gripper, list(h.fingers), physicsClientId=c)]
+        opening = 2.0 * (np.mean(q) - h.finger_inner)
+        robot = np.array([pos[0], pos[1], pos[2] - h.palm_offset, yaw_of(np.array(orn)), opening])
+        objects = np.array([self._absent[i] if i in self._absent else
+                            np.concatenate(pb.getBasePositionAndOrientation(b, physicsClientId=c))
+                            for i, b in enumerate(h.objects)])
+        return Configuration(robot, objects)
+
+    def at_rest(self) -> bool:
+        c = self.client
+        for i, b in enumerate(self.handles.objects):
+            if i in self._absent:
+                continue
+            lin, ang = pb.getBaseVelocity(b, physicsClientId=c)
+            if max(map(abs, lin)) > REST_LINEAR or max(map(abs, ang)) > REST_ANGULAR:
+                return False
+        return True
+
+    # -- acting -------------------------------------------------------------------------
+    def _step(self) -> None:
+        pb.stepSimulation(physicsClientId=self.client)
+
+    def _wrist_force(self):
+        return pb.getConstraintState(self.handles.base_constraint, physicsClientId=self.client)[:3]
+
+    def _tool_position(self) -> np.ndarray:
+        pos, _ = pb.getBasePositionAndOrientation(self.handles.gripper, physicsClientId=self.client)
+        return np.array([pos[0], pos[1], pos[2] - self.handles.palm_offset])
+
+    def _commanded_tool(self) -> np.ndarray:
+        return np.array(self._sent_pose[0][:3])
+
+    def _leave_out(self, targets: np.ndarray) -> reach.Guard | None:
+        """Remove the objects the action cannot reach (``sim_workers.reach``); None when
+        every object is within reach."""
+        h, c = self.handles, self.client
+        boxes = np.array([reach.body_box(b, c) for b in h.objects])
+        tool = np.array(self._sent_pose[0][:3])
+        opening = float(self._sent_q[0] - h.finger_inner) * 2.0
+        keep = reach.kept_objects(boxes, reach.body_box(h.gripper, c), tool, targets[:, :3],
+                                  widening=float(targets[:, 4].max()) - opening)
+        if keep.all():
+            return None
+        kept = [int(i) for i in np.flatnonzero(keep)]
+        for i in np.flatnonzero(~keep):
+            self._absent[int(i)] = np.concatenate(pb.getBasePositionAndOrientation(h.objects[i], physicsClientId=c))
+            pb.removeBody(h.objects[i], physicsClientId=c)
+        bodies = [h.objects[i] for i in kept]
+        start = np.array([pb.getBasePositionAndOrientation(b, physicsClientId=c)[0] for b in bodies]).reshape(-1, 3)
+        return reach.Guard(c, h.gripper, bodies, reach.radii(start, boxes[kept]), boxes[~keep])
+
+    def _opening(self) -> float:
+        h = self.handles
+        q = [s[0] for s in pb.getJointStates(h.gripper, list(h.fingers), physicsClientId=self.client)]
+        return 2.0 * (float(np.mean(q)) - h.finger_inner)
