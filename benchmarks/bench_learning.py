@@ -12,6 +12,8 @@ of at least 90 %.
     python benchmarks/bench_learning.py --domains container --out runs/bl
     python benchmarks/bench_learning.py --scale paper            # the whole grid, 3 seeds, 8 episodes
     python benchmarks/bench_learning.py --before runs/bl-old     # side by side with an earlier sweep
+    python benchmarks/bench_learning.py --engine mujoco --reality-engine pybullet --out runs/bl-x
+        # the particles in one engine, reality in the other (issue 27's cross-engine sweep)
     python benchmarks/bench_learning.py --rejudge runs/bl-old --t-star-from runs/bl
         # an earlier sweep's runs judged again against another sweep's T* caches (no run)
 
@@ -43,7 +45,8 @@ def sweep_args(domain: str, args) -> argparse.Namespace:
         name="sweep", domain=domain, runs=args.runs, episodes=args.episodes, particles=args.particles,
         seed=args.seed, particle_budget=args.particle_budget, min_particles=8, scale=args.scale,
         max_steps=60, true_size=None, milestones=None, probe_trials=args.probe_trials, probe_seed=0,
-        checkpoint_s=60.0, ray_address=None, out=None, resume=args.resume, no_progress=True)
+        checkpoint_s=60.0, ray_address=None, out=None, resume=args.resume, no_progress=True,
+        engine=args.engine, reality_engine=args.reality_engine)
 
 
 def _fmt(v) -> str:
@@ -63,6 +66,10 @@ def main(argv=None) -> int:
                     help="as `tmoc run` (default kld, the service's default)")
     ap.add_argument("--probe-trials", type=int, default=None)
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--engine", default=None, help="the particle worlds' engine (default: pybullet)")
+    ap.add_argument("--reality-engine", default=None,
+                    help="the simulated reality's engine and T*'s (another than --engine's: a simulator "
+                         "that is not reality)")
     ap.add_argument("--out", default="runs/bench_learning")
     ap.add_argument("--resume", action="store_true")
     ap.add_argument("--before", default=None, metavar="DIR", help="an earlier OUT to compare with")

@@ -3,13 +3,13 @@
 MuJoCo keeps every piece of simulation state in ``MjData`` (warm starts included) and
 ``mj_resetData`` clears all of it, so a reset is a fresh data on the model of the
 hypothesis: bit-identical to a fresh process without rebuilding anything (checked in
-tests/sim_workers/test_engines.py). Models are compiled once per scene description (a
-frozen, hashable declaration) and kept in a small per-world cache; the few model fields
-a trajectory changes (the drives' force limits) are set by every reset's first command.
+tests/sim_workers/test_determinism.py). A new hypothesis that changes only blocks' boxes
+and masses is written into the world's model in place (``mujoco_engine.patch``: the model
+compiling it would give, bit for bit); anything else compiles its scene. The few model
+fields a trajectory changes (the drives' force limits) are set by every reset's first
+command.
 """
 from __future__ import annotations
-
-from collections import OrderedDict
 
 import mujoco
 import numpy as np
@@ -17,9 +17,7 @@ import numpy as np
 from ..configuration import Configuration
 from ..domains import Domain
 from ..grounded_world import REST_ANGULAR, REST_LINEAR, GroundedWorld
-from .mujoco_engine import MujocoScene, build_model
-
-MODEL_CACHE = 32          # compiled scenes a world keeps (one per hypothesis it has seen)
+from .mujoco_engine import MujocoScene, build_model, patch
 
 
 
@@ -43,7 +41,7 @@ class MujocoWorld(GroundedWorld):
         super().__init__(domain, leave_out=False)
 
     def _connect(self) -> None:
-        self._cache: OrderedDict = OrderedDict()
+        self._desc = None                   # the scene description the model holds
         self.scene: MujocoScene | None = None
         self.model = self.data = None
         self._target = np.zeros(6)          # palm x, y, z, yaw, finger q, finger q
@@ -51,8 +49,7 @@ class MujocoWorld(GroundedWorld):
         self._compensate = 0.0
 
     def close(self) -> None:
-        self._cache.clear()
-        self.scene = self.model = self.data = None
+        self.scene = self.model = self.data = self._desc = None
 
     @property
     def time_step(self) -> float:
@@ -60,15 +57,10 @@ class MujocoWorld(GroundedWorld):
 
     def _rebuild(self, props: dict) -> None:
         desc = self.domain.scene_description(props)
-        entry = self._cache.pop(desc, None)
-        if entry is None:
-            scene = build_model(desc)
-            entry = (scene, mujoco.MjData(scene.model))
-        self._cache[desc] = entry
-        while len(self._cache) > MODEL_CACHE:
-            self._cache.popitem(last=False)
-        self.scene, self.data = entry
-        self.model = self.scene.model
+        if desc != self._desc and not (self.scene is not None and patch(self.scene, self._desc, desc, self.data)):
+            self.scene = build_model(desc)
+            self.model, self.data = self.scene.model, mujoco.MjData(self.scene.model)
+        self._desc = desc
         mujoco.mj_resetData(self.model, self.data)
         self._sent = None
 

@@ -1,7 +1,9 @@
 """Determinism: a particle-action's result depends on (configuration, sizes, trajectory) only.
 
 Not on the world's past, the process, the number of worlds in a shard, how a batch is split
-or which Ray actor runs it. Comparisons are bit-for-bit (``tobytes``), not approximate.
+or which Ray actor runs it. Comparisons are bit-for-bit (``tobytes``), not approximate. In
+both engines (issue 27): pybullet rebuilds its world per reset, MuJoCo resets its data (on
+models cached per hypothesis, so a world with a past has them compiled already).
 """
 from __future__ import annotations
 
@@ -22,6 +24,7 @@ from sim_workers.container.probes import loaded_configuration
 from sim_workers.shard import Shard, decode_state, remote_shard
 
 N = 8
+ENGINES = ["pybullet", "mujoco"]
 
 
 def _case(action: str):
@@ -54,9 +57,10 @@ def _bits(a: np.ndarray) -> bytes:
     return np.ascontiguousarray(a, dtype=np.float64).tobytes()
 
 
+@pytest.mark.parametrize("engine", ENGINES)
 @pytest.mark.parametrize("action", [PICKUP, PUSH])
-def test_two_fresh_worlds_give_identical_bits(action):
-    domain = load("container")
+def test_two_fresh_worlds_give_identical_bits(action, engine):
+    domain = load("container", engine=engine)
     with GroundedWorld(domain) as a, GroundedWorld(domain) as b:
         ra, rb = _run(a, action, SIZES[2]), _run(b, action, SIZES[2])
     assert _bits(ra) == _bits(rb)
@@ -79,9 +83,10 @@ def _with_a_past(world: GroundedWorld, action: str, sizes) -> np.ndarray:
     return _run(world, action, sizes)
 
 
+@pytest.mark.parametrize("engine", ENGINES)
 @pytest.mark.parametrize("action", [PICKUP, PUSH])
-def test_a_world_with_a_past_equals_a_fresh_world(action):
-    domain = load("container")
+def test_a_world_with_a_past_equals_a_fresh_world(action, engine):
+    domain = load("container", engine=engine)
     with GroundedWorld(domain) as fresh:
         expected = _run(fresh, action, SIZES[0])
     with GroundedWorld(domain) as used:
@@ -131,7 +136,7 @@ _SCRIPT = textwrap.dedent("""
     spec.loader.exec_module(helpers)
     _case, SIZES = helpers._case, helpers.SIZES
     out = {}
-    with GroundedWorld(load("container")) as w:
+    with GroundedWorld(load("container", engine=sys.argv[3])) as w:
         for action in json.loads(sys.argv[1]):
             config, traj, t0 = _case(action)
             w.reset(config, {"block_sizes": SIZES[2]})
@@ -142,14 +147,15 @@ _SCRIPT = textwrap.dedent("""
 
 
 @pytest.mark.timeout(180)          # the fresh process may take its 120 s
-def test_a_fresh_process_gives_identical_bits(neutral_cwd):
+@pytest.mark.parametrize("engine", ENGINES)
+def test_a_fresh_process_gives_identical_bits(neutral_cwd, engine):
     actions = [PICKUP, PUSH]
-    proc = subprocess.run([sys.executable, "-c", _SCRIPT, json.dumps(actions), __file__],
+    proc = subprocess.run([sys.executable, "-c", _SCRIPT, json.dumps(actions), __file__, engine],
                           capture_output=True, text=True, timeout=120, cwd=neutral_cwd)
     assert proc.returncode == 0, proc.stderr
     line = [ln for ln in proc.stdout.splitlines() if ln.startswith("RESULT ")][-1]
     theirs = json.loads(line[len("RESULT "):])
-    with GroundedWorld(load("container")) as w:
+    with GroundedWorld(load("container", engine=engine)) as w:
         for action in actions:
             assert theirs[action] == _bits(_run(w, action, SIZES[2])).hex(), action
 
@@ -168,11 +174,12 @@ def _concat(parts: list[dict]) -> dict:
     return {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
 
 
-def test_shard_size_and_batch_split_do_not_matter():
+@pytest.mark.parametrize("engine", ENGINES)
+def test_shard_size_and_batch_split_do_not_matter(engine):
     config, traj, t0 = _case(PICKUP)
     start = config.to_array()
-    one = Shard("container", n_worlds=1)
-    three = Shard("container", n_worlds=3)
+    one = Shard("container", {"engine": engine}, n_worlds=1)
+    three = Shard("container", {"engine": engine}, n_worlds=3)
     try:
         whole = one.simulate(start, SIZES, PICKUP, traj, t0)
         split = _concat([three.simulate(start, SIZES[:1], PICKUP, traj, t0),
@@ -192,18 +199,19 @@ def test_shard_size_and_batch_split_do_not_matter():
 
 @pytest.mark.slow
 @pytest.mark.timeout(480)          # Ray's start, then ray.get waits of 180 + 180 + 60 s
-def test_two_ray_actors_match_the_in_process_shard(ray_cluster):
+@pytest.mark.parametrize("engine", ENGINES)
+def test_two_ray_actors_match_the_in_process_shard(ray_cluster, engine):
     ray = ray_cluster
     config, traj, t0 = _case(PUSH)
     start = config.to_array()
-    local = Shard("container", n_worlds=2)
+    local = Shard("container", {"engine": engine}, n_worlds=2)
     try:
         expected = local.simulate(start, SIZES, PUSH, traj, t0)
     finally:
         local.close()
     # No CPU reservation: other tests' actors on the shared 2-CPU cluster cannot starve these.
     Actor = remote_shard(num_cpus=0)
-    actors = [Actor.remote("container", None, n) for n in (1, 2)]
+    actors = [Actor.remote("container", {"engine": engine}, n) for n in (1, 2)]
     try:
         parts = ray.get([actors[0].simulate.remote(start, SIZES[:3], PUSH, traj, t0),
                          actors[1].simulate.remote(start, SIZES[3:], PUSH, traj, t0)], timeout=180)
@@ -225,8 +233,9 @@ def _rss_mb() -> float:
 
 
 @pytest.mark.slow
-def test_memory_stays_flat_over_many_resets():
-    domain = load("container")
+@pytest.mark.parametrize("engine", ENGINES)
+def test_memory_stays_flat_over_many_resets(engine):
+    domain = load("container", engine=engine)
     config, traj, t0 = _case(PICKUP)
     rng = np.random.default_rng(0)
     with GroundedWorld(domain) as w:

@@ -1,0 +1,175 @@
+"""The second engine (issue 27): MuJoCo builds every domain's one scene declaration, with
+the contact laws it declares, and the physics claims hold in it as in pybullet.
+
+Real pybullet and real MuJoCo; determinism is in test_determinism.py (parametrised over
+both engines), the conformance checks in tests/coordinator/test_domains.py.
+"""
+from __future__ import annotations
+
+from dataclasses import replace
+
+import mujoco
+import numpy as np
+import pytest
+
+from coordinator.cli import main
+from sim_workers import engines
+from sim_workers.domains import load, names
+from sim_workers.engines.mujoco_engine import build_model
+from sim_workers.grounded_world import GroundedWorld, act
+from sim_workers.probe import probe
+
+ENGINES = ["pybullet", "mujoco"]
+
+
+def test_unknown_engine_is_named_with_the_known_ones():
+    with pytest.raises(engines.EngineError, match=r"^engine: unknown engine 'bullet' \(known: pybullet, mujoco\)"):
+        engines.check_engine("bullet")
+    with pytest.raises(engines.EngineError, match="engine: unknown"):
+        load("container", engine="bullet")
+    assert engines.check_engine(None) == "pybullet"      # installed here: every result's engine
+
+
+def test_a_missing_engine_names_its_package(monkeypatch):
+    monkeypatch.setattr(engines, "installed", lambda e: e != "pybullet")
+    with pytest.raises(engines.EngineError, match="the pybullet engine needs the Python package 'pybullet'"):
+        engines.check_engine("pybullet")
+    assert engines.default_engine() == "mujoco"
+
+
+@pytest.mark.parametrize("flag", ["--engine", "--reality-engine"])
+def test_cli_refuses_an_unknown_engine_in_one_line(flag, capsys, tmp_path):
+    assert main(["run", flag, "ode", "--out", str(tmp_path)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and flag in err[0] and "ode" in err[0], err
+
+
+@pytest.mark.parametrize("name", names())
+def test_every_domain_compiles_in_mujoco_from_its_one_declaration(name):
+    domain = load(name)
+    desc = domain.scene_description(domain.properties(domain.true_properties()))
+    scene = build_model(desc)
+    m = scene.model
+    # every body of the declaration, each free one with its declared mass
+    for body in desc.bodies:
+        bid = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, body.name)
+        assert bid >= 0, body.name
+        if body.mass:
+            assert m.body_mass[bid] == pytest.approx(body.mass, rel=1e-9)
+    assert len(scene.objects) == len(desc.objects)
+    assert m.opt.timestep == desc.time_step
+
+
+def test_friction_is_the_declared_product_per_pair():
+    """Bullet multiplies two bodies' coefficients and the domains' mu_* are chosen for that
+    product; MuJoCo would take the larger one. The explicit pairs carry the product."""
+    domain = load("container", n_blocks=2)
+    desc = domain.scene_description(domain.properties(domain.true_properties()))
+    m = build_model(desc).model
+    mu = {b.name: b.friction for b in desc.bodies}
+    mu["palm"] = mu["finger_l"] = mu["finger_r"] = desc.gripper.friction
+
+    def body_of(geom):
+        return mujoco.mj_id2name(m, mujoco.mjtObj.mjOBJ_BODY, m.geom_bodyid[geom])
+
+    seen = set()
+    for k in range(m.npair):
+        a, b = body_of(m.pair_geom1[k]), body_of(m.pair_geom2[k])
+        assert m.pair_friction[k, 0] == pytest.approx(mu[a] * mu[b]), (a, b)
+        seen.add(frozenset((a, b)))
+    assert frozenset(("b1", "table")) in seen and frozenset(("b1", "b2")) in seen
+    assert frozenset(("b1", "finger_l")) in seen and frozenset(("table", "container")) in seen
+    assert all(m.geom_contype == 0) and all(m.geom_conaffinity == 0)   # nothing else collides
+
+
+def test_a_guarded_move_caps_the_wrist_force_in_mujoco():
+    """Pressing the empty hand onto the table with a 3 N limit: the drive never exceeds it,
+    and the arm carries the gripper's weight (gravity compensation), as in pybullet."""
+    domain = load("stack_and_push", engine="mujoco")
+    props = domain.true_properties()
+    with GroundedWorld(domain) as world:
+        config = world.reset(domain.initial_configuration(props), props)
+        x, y = 0.3, 0.25                       # bare table
+        traj = np.array([[0.0, x, y, 0.05, 0.0, 0.0, 5.0, 3.0],
+                         [0.5, x, y, -0.05, 0.0, 0.0, 5.0, 3.0],
+                         [1.0, x, y, -0.05, 0.0, 0.0, 5.0, 3.0]])
+        world._apply(type(config)(np.array([x, y, 0.05, 0.0, 0.0]), config.objects))
+        forces = []
+        for row in traj[1:]:
+            world._set_gripper(row[1:])
+            for _ in range(40):
+                world._step()
+                forces.append(world._wrist_force())
+        forces = np.array(forces)
+        assert np.all(np.abs(forces) <= 3.0 + 1e-9)
+        tip = world.observe().robot[2]
+    assert tip > -0.002          # held up by the table: the limit kept it from driving through
+
+
+@pytest.mark.parametrize("engine", ENGINES)
+@pytest.mark.parametrize("name", ["container", "stack_and_push"])
+def test_a_pickup_with_the_true_size_holds_and_25_percent_off_misses(name, engine):
+    """The README's first probe claim, in both engines, small: 4 seeded trials each."""
+    right = probe("pickup", 0.045, 0.045, trials=4, seed=1, n_blocks=4, domain=name, options={"engine": engine})
+    off = probe("pickup", 0.045, 0.045 * 1.25, trials=4, seed=1, n_blocks=4, domain=name,
+                options={"engine": engine})
+    assert right.successes == 4 and off.successes == 0
+
+
+def test_both_engines_agree_on_a_carried_stack():
+    """The same pickup and stack from the same start: the same symbolic outcome, and the
+    stacked block within 3 mm of where pybullet put it."""
+    out = {}
+    for engine in ENGINES:
+        domain = load("container", n_blocks=4, engine=engine)
+        truth = domain.true_properties()
+        with GroundedWorld(domain) as w:
+            c = w.reset(domain.initial_configuration(truth), truth)
+            o = act(w, domain, c, truth, "pickup(r,b1,init)")
+            o = act(w, domain, o.configuration, truth, "stack(r,b1,c)")
+        out[engine] = o
+    assert out["pybullet"].state == out["mujoco"].state
+    assert "at_container(b1,c)" in out["mujoco"].state
+    a, b = (out[e].configuration.objects[1, :3] for e in ENGINES)
+    assert np.abs(a - b).max() < 0.003
+
+
+def _model_fields(m) -> dict:
+    """Every array of a model, and the statistics and options the simulation reads."""
+    out = {k: getattr(m, k).tobytes() for k in dir(m)
+           if not k.startswith("_") and isinstance(getattr(m, k), np.ndarray) and getattr(m, k).dtype != object}
+    out.update({f"stat.{k}": repr(getattr(m.stat, k)) for k in dir(m.stat)
+                if not k.startswith("_") and k not in ("meanmass", "meansize")})   # rendering only
+    out.update({f"opt.{k}": repr(getattr(m.opt, k)) for k in dir(m.opt) if not k.startswith("_")})
+    return out
+
+
+@pytest.mark.parametrize("name,options", [("container", {}), ("stack_and_push", {"unknown_density": True})])
+def test_a_patched_model_is_the_compiled_one_bit_for_bit(name, options):
+    """A world moves from hypothesis to hypothesis by writing boxes and masses into its
+    model; that model must be what compiling the hypothesis gives, every field."""
+    from sim_workers.engines.mujoco_engine import patch
+
+    domain = load(name, **options)
+    L = domain.L
+    rng = np.random.default_rng(7)
+    prev = domain.scene_description(domain.properties(domain.props_from_row(np.array(L.truth))))
+    scene = build_model(prev)
+    data = mujoco.MjData(scene.model)
+    for _ in range(12):
+        new = domain.scene_description(domain.properties(domain.props_from_row(rng.uniform(L.low, L.high))))
+        assert patch(scene, prev, new, data)
+        fresh, got = _model_fields(build_model(new).model), _model_fields(scene.model)
+        assert [k for k in fresh if fresh[k] != got[k]] == []
+        prev = new
+
+
+def test_a_scene_that_is_not_boxes_is_compiled_not_patched():
+    from sim_workers.engines.mujoco_engine import _patchable
+
+    domain = load("container", n_blocks=2)
+    a = domain.scene_description(domain.properties(domain.props_from_row(np.array([0.04]))))
+    b = domain.scene_description(domain.properties(domain.props_from_row(np.array([0.05]))))
+    assert _patchable(a, b)
+    moved_tray = replace(b, bodies=tuple(replace(x, friction=0.9) if x.name == "container" else x for x in b.bodies))
+    assert not _patchable(a, moved_tray)       # a friction is a pair's: compiled
