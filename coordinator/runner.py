@@ -8,6 +8,8 @@ from typing import Callable
 
 import numpy as np
 
+from sim_workers.engines import check_engine
+
 from .fanout import ShardPool
 from .reality import ContextFailure, SimulatedReality
 from .run_config import REALITY_STREAM, RunConfig, seed_stream
@@ -171,6 +173,9 @@ def result_record(config: RunConfig, session: Session, nodes: list[dict], wall_s
             "transit_fallbacks": int(sum(e.get("transit_fallbacks", 0) for e in episodes)),
         },
         "runtime": {
+            # the engines that ran (the config's, or the default where it left them unset)
+            "engines": {"particles": check_engine(config.engine),
+                        "reality": check_engine(config.reality_engine, "reality_engine")},
             "shards": len(nodes),
             "nodes": (tally or NodeTally()).report(nodes),
             "reruns": tally.reruns if tally is not None else 0,

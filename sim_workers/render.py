@@ -3,7 +3,9 @@
 A :class:`SceneRenderer` owns one DIRECT client of its own, built in the process that
 renders (a client id does not survive pickling), and rebuilds the scene for each picture
 under the properties given (a particle's hypothesis, or the truth). Rendering reads a
-configuration; it never steps physics, so a picture changes nothing of a run.
+configuration; it never steps physics, so a picture changes nothing of a run. Whatever
+engine a run simulates in, its pictures are pybullet's (MuJoCo's renderer needs an OpenGL
+context, which a headless server lacks); without pybullet a run has no pictures.
 """
 from __future__ import annotations
 
@@ -14,7 +16,7 @@ import pybullet as pb
 
 from .configuration import Configuration
 from .domains import Domain
-from .grounded_world import GroundedWorld
+from .engines.pybullet_world import PybulletWorld
 
 WIDTH, HEIGHT = 320, 240        # one panel; a PNG of it is ~2-10 KB (flat colours compress well)
 FOV_DEG = 45.0
@@ -55,7 +57,7 @@ class SceneRenderer:
 
     def __init__(self, domain: Domain) -> None:
         self.domain = domain
-        self.world = GroundedWorld(domain)
+        self.world = PybulletWorld(domain)
 
     def close(self) -> None:
         self.world.close()

@@ -184,6 +184,12 @@ def _config(args) -> RunConfig:
 
 def main(args) -> int:
     config = _config(args)
+    if args.frames:
+        from sim_workers.engines import installed
+
+        if not installed("pybullet"):
+            raise UsageError("--frames: the pictures are drawn by pybullet's TinyRenderer, which is not "
+                             "installed (pip install pybullet, where it builds), or leave --frames out")
     tracker = None
     if getattr(args, "log_to", None):
         from ..tracker import TrackerError, open_tracker

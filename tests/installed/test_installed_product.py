@@ -79,14 +79,6 @@ def wheel_files(wheel: Path) -> set[str]:
 
 
 @pytest.fixture(scope="module")
-def tree_wheel(tmp_path_factory) -> Path:
-    """The wheel of a copy of the whole checkout (pip builds in the source folder)."""
-    tmp = tmp_path_factory.mktemp("tree")
-    shutil.copytree(REPO, tmp / "src", ignore=_TREE_IGNORE)
-    return build_wheel(tmp / "src", tmp / "dist")
-
-
-@pytest.fixture(scope="module")
 def docker_context(tmp_path_factory) -> Path:
     """The image's WORKDIR after its COPY lines: only the files the Dockerfile copies.
 
