@@ -11,7 +11,9 @@ whatever else the machine does; best of ``--rounds``.
 Printed per domain and action: milliseconds per particle-action in each engine, the ratio
 (MuJoCo's particle-actions per core-second over pybullet's), and the agreement of the
 outcomes particle by particle: the share with the same Y^-1 (symbolic state) and the
-largest difference of each weighed measurement channel in its sensor sigmas. The last line
+largest difference of each weighed measurement channel in its sensor sigmas; and the share
+of MuJoCo's time inside ``mj_step`` (the rest is Python: resets, Y^-1, the per-step
+commands), which bounds what a batched call (``mujoco.rollout``) could save. The last line
 is the ratio over all six actions (total particle-actions over total CPU seconds).
 
     python benchmarks/bench_engines.py --quick     # 16 particles, 1 round (about a minute)
@@ -33,6 +35,25 @@ from bench_worlds import DOMAINS, make_cases, particle_sizes  # noqa: E402
 from sim_workers.domains import load  # noqa: E402
 from sim_workers.engines import ENGINES, installed  # noqa: E402
 from sim_workers.shard import Shard  # noqa: E402
+
+
+class StepClock:
+    """CPU seconds spent inside ``mj_step`` by MuJoCo worlds (wraps ``MujocoWorld._step``)."""
+
+    def __init__(self) -> None:
+        import mujoco
+
+        from sim_workers.engines.mujoco_world import MujocoWorld
+
+        self.seconds = 0.0
+        clock = self
+
+        def _step(world) -> None:
+            t = time.process_time()
+            mujoco.mj_step(world.model, world.data)
+            clock.seconds += time.process_time() - t
+
+        MujocoWorld._step = _step
 
 
 def run_case(shard: Shard, case, rows: np.ndarray, rounds: int) -> tuple[float, dict]:
@@ -73,6 +94,8 @@ def main(argv=None) -> int:
         sys.exit(f"bench_engines: needs both engines ({', '.join(missing)} not installed)")
     print(f"bench_engines: {n} particles per action, best of {rounds}, CPU time per particle-action")
     total = {e: [0.0, 0] for e in ENGINES}
+    clock = StepClock()
+    mujoco_all = 0.0           # every round and warm-up, as the clock counts
     for name in args.domains.split(","):
         domain = load(name)
         cases = make_cases(domain, args.seed)
@@ -81,7 +104,10 @@ def main(argv=None) -> int:
         for action, case in cases.items():
             secs, outs = {}, {}
             for e in ENGINES:
+                c0 = time.process_time()
                 secs[e], outs[e] = run_case(shards[e], case, rows, rounds)
+                if e == "mujoco":
+                    mujoco_all += time.process_time() - c0
                 total[e][0] += secs[e]
                 total[e][1] += n
             ms = {e: 1000.0 * secs[e] / n for e in ENGINES}
@@ -94,6 +120,7 @@ def main(argv=None) -> int:
         for s in shards.values():
             s.close()
     rate = {e: total[e][1] / total[e][0] for e in ENGINES}
+    print(f"MuJoCo time inside mj_step: {clock.seconds / mujoco_all:.0%} (the rest is Python per particle and step)")
     print(f"particle-actions per core-second: pybullet {rate['pybullet']:.1f}, mujoco {rate['mujoco']:.1f}")
     print(f"ratio_mujoco_vs_pybullet={rate['mujoco'] / rate['pybullet']:.2f}")
     return 0

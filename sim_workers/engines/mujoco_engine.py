@@ -13,8 +13,12 @@ engines differ:
   three slide joints and a yaw hinge, each driven by a velocity actuator whose target is the
   velocity that closes the position error in ``CATCH_UP`` steps and whose force is capped
   at the limit the trajectory commands (``forcerange``): the same velocity-level,
-  force-limited tracking. The wrist sensor is the three slide actuators' force, as
-  Bullet's is the constraint's.
+  force-limited tracking. The gripper's own weight is carried by gravity compensation
+  (``gravcomp``), as an arm controller does: a drive carrying it would sag by weight / kp
+  (1.4 mm, measured: fingertips meant to stop 1 mm above a block's top closed on it). The
+  wrist sensor is the three slide actuators' force plus, outside a guarded move, the
+  gripper's weight: what Bullet's constraint carries (in a guarded move pybullet's arm
+  carries the weight too, and its sensor reads the constraint alone).
 - **The fingers** are two slide joints along the palm's +-y with the same capped velocity
   drive at the grip force, coupled by a joint equality (Bullet's gear constraint).
 
@@ -145,6 +149,7 @@ def _add_gripper(spec: mujoco.MjSpec, g: Gripper) -> tuple[list[str], list[str]]
     pz, fy, fz = g.palm_half[2], g.finger_half[1], g.finger_half[2]
     palm = spec.worldbody.add_body()
     palm.name = "palm"
+    palm.gravcomp = 1.0        # see build_model's doc: the arm carries the gripper's weight
     palm.pos = [0.0, 0.0, 0.0]
     for name, axis, kind in zip(PALM_JOINTS, ((1, 0, 0), (0, 1, 0), (0, 0, 1), (0, 0, 1)),
                                 ("slide",) * 3 + ("hinge",)):
@@ -157,6 +162,7 @@ def _add_gripper(spec: mujoco.MjSpec, g: Gripper) -> tuple[list[str], list[str]]
     for name, sign in zip(FINGER_JOINTS, (1.0, -1.0)):
         f = palm.add_body()
         f.name = name
+        f.gravcomp = 1.0
         f.pos = [0.0, 0.0, -(pz + fz)]
         j = f.add_joint()
         j.name = name

@@ -46,7 +46,7 @@ class MujocoWorld(GroundedWorld):
         self.model = self.data = None
         self._target = np.zeros(6)          # palm x, y, z, yaw, finger q, finger q
         self._sent: tuple | None = None
-        self._compensate = 0.0
+        self._tare = 0.0
 
     def close(self) -> None:
         self.scene = self.model = self.data = self._desc = None
@@ -97,9 +97,10 @@ class MujocoWorld(GroundedWorld):
             for a in s.finger_actuators:
                 m.actuator_forcerange[a] = (-grip, grip)
             self._sent = (limit, grip)
-            # Below the scene's limit the arm carries the gripper's weight (a guarded move).
-            weight = s.gripper_mass * -float(m.opt.gravity[2])
-            d.xfrc_applied[s.palm_body, 2] = weight if limit < self.domain.base_max_force else 0.0
+            # The sensor adds the weight the arm carries outside a guarded move (see
+            # mujoco_engine: the gripper is gravity-compensated throughout).
+            guarded = limit < self.domain.base_max_force
+            self._tare = 0.0 if guarded else s.gripper_mass * -float(m.opt.gravity[2])
 
     def _step(self) -> None:
         mujoco.mj_step(self.model, self.data)
@@ -135,7 +136,7 @@ class MujocoWorld(GroundedWorld):
     def _wrist_force(self):
         f = self.data.actuator_force
         a = self.scene.palm_actuators
-        return (float(f[a[0]]), float(f[a[1]]), float(f[a[2]]))
+        return (float(f[a[0]]), float(f[a[1]]), float(f[a[2]]) + self._tare)
 
     def _opening(self) -> float:
         s = self.scene
