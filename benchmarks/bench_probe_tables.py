@@ -1,6 +1,6 @@
-"""Every probe table of the README in both engines, same seeds (issue 27).
+"""Every probe table of docs/BUILTIN_DOMAINS.md in both engines, same seeds (issue 27).
 
-Each row is one ``tmoc probe`` (``sim_workers.probe.probe``) with the README's settings,
+Each row is one ``tmoc probe`` (``sim_workers.probe.probe``) with the settings of the pages,
 run in pybullet and in MuJoCo; printed as a markdown table with both counts side by side
 (and JSON with ``--json FILE``). A claim that does not hold in MuJoCo shows here, with
 the same seeded trials (placement and friction jitter are drawn before the engine is
@@ -31,7 +31,7 @@ T1, T2, T3 = "container (--seed 1)", "container, 54 mm (--seed 0)", "container, 
 T4 = "stack_and_push, 40 mm (--seed 0)"
 T5, T6 = "weights, 45 mm, 2400 kg/m^3 (--seed 0)", "weights, 45 mm, 700 kg/m^3 (--seed 0)"
 HEAVY = {"density": 2400.0}
-# The README's settings, row by row.
+# The pages' settings, row by row.
 ROWS = [
     row(T1, "pickup, believed = true 45 mm", C, "pickup", 0.045, 20, 1),
     *[row(T1, f"pickup, believed {b * 1000:.1f} mm", C, "pickup", 0.045, 16, 1, believed_size=b)

@@ -96,7 +96,7 @@ class FrameRecorder:
         self.sink = sink
         self._renderer = None               # built on first use, in this process, closed by close()
         self._home: Configuration | None = None   # the scene's start: every camera frames it too
-        self.render_ms: list[float] = []    # per rendered panel (for the README's figure)
+        self.render_ms: list[float] = []    # per rendered panel (for the figure in docs/SERVICE.md)
 
     # -- plumbing -------------------------------------------------------------------------
     def _r(self):

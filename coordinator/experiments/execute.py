@@ -4,7 +4,7 @@ checkpoints through a small actor, run files written as runs finish.
 How runs share the cluster's CPUs. Every run is one Ray task that reserves one CPU and
 simulates its particles in-process (``ShardPool(n_shards=0)``), so as many runs go at once
 as the cluster has CPUs, and no run pays Ray's fan-out round trips. Results do not depend
-on where or with how many shards particles run (README, Determinism), so a run gives the
+on where or with how many shards particles run (docs/LOOP.md, Determinism), so a run gives the
 same episodes here as under ``tmoc run``. Runs are submitted most expensive first
 (episodes x particles), which packs them well onto few CPUs. The cost of this choice: one
 run never uses more than one CPU, so a cluster with more CPUs than ``settings x runs``

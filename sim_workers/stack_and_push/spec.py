@@ -81,7 +81,7 @@ class StackAndPushSpec:
     # accelerations and a force-limited stroke's limit by the square): the simulated
     # reality and the probes do (sim_workers.reality_gap.executed), Y and the particle
     # worlds plan the nominal stroke. It grades the push's success by tower height at
-    # every size of the prior (issue 24; measured in README "Learning across the prior").
+    # every size of the prior (issue 24; measured in docs/EXPERIMENTS.md "Learning across the prior").
     push_time_jitter: float = 0.30
     move_speed: float = 0.30
     approach_speed: float = 0.10    # m/s, the last 8 cm down to a grasp or release

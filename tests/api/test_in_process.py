@@ -34,6 +34,8 @@ def test_health_and_the_domains_without_ray(client):
     ({"options": {"no_such_option": 1}}, "no_such_option"),
     ({"costs": {"push": -1}}, "push"),
     ({"reality_fail": "fly:2"}, "reality_fail"),
+    ({"engine": "ode"}, "engine"),
+    ({"reality_engine": "bullet"}, "reality_engine"),
 ])
 def test_a_bad_task_is_a_422_naming_the_field_and_nothing_is_stored(client, body, field):
     before = client.get("/v1/tasks", params={"limit": 200}).json()["items"]
@@ -51,3 +53,12 @@ def test_unknown_ids_are_404s(client):
 def test_the_schema_has_one_task_model_per_domain(client):
     schemas = client.get("/openapi.json").json()["components"]["schemas"]
     assert {"TaskSpecContainer", "TaskSpecStackAndPush"} <= set(schemas)
+
+
+def test_the_schema_offers_the_installed_engines_and_a_session_has_no_reality_engine(client):
+    schemas = client.get("/openapi.json").json()["components"]["schemas"]
+    task = schemas["TaskSpecContainer"]["properties"]
+    engines = [e for alt in task["engine"]["anyOf"] for e in alt.get("enum", [])]
+    assert engines == ["pybullet", "mujoco"] and "reality_engine" in task
+    session = schemas["SessionCreateContainer"]["properties"]
+    assert "engine" in session and "reality_engine" not in session

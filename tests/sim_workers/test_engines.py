@@ -109,7 +109,7 @@ def test_a_guarded_move_caps_the_wrist_force_in_mujoco():
 @pytest.mark.parametrize("engine", ENGINES)
 @pytest.mark.parametrize("name", ["container", "stack_and_push"])
 def test_a_pickup_with_the_true_size_holds_and_25_percent_off_misses(name, engine):
-    """The README's first probe claim, in both engines, small: 4 seeded trials each."""
+    """The first probe claim of docs/BUILTIN_DOMAINS.md, in both engines, small: 4 seeded trials each."""
     right = probe("pickup", 0.045, 0.045, trials=4, seed=1, n_blocks=4, domain=name, options={"engine": engine})
     off = probe("pickup", 0.045, 0.045 * 1.25, trials=4, seed=1, n_blocks=4, domain=name,
                 options={"engine": engine})

@@ -48,7 +48,7 @@ def test_the_jitter_is_the_domain_s():
 @pytest.mark.timeout(300)
 def test_the_jitter_grades_a_tall_tower_s_push():
     # A tower of 7 at 45 mm: the nominal stroke always gives one answer; the real arm's
-    # timing makes it a chance (measured across the prior in README "Learning across the
+    # timing makes it a chance (measured across the prior in docs/EXPERIMENTS.md "Learning across the
     # prior": one height between 20 and 80 % at every size).
     graded = probe("push", 0.045, load_k=7, trials=8, seed=3, domain="stack_and_push")
     nominal = probe("push", 0.045, load_k=7, trials=8, seed=3, domain="stack_and_push",
