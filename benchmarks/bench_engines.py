@@ -11,9 +11,10 @@ whatever else the machine does; best of ``--rounds``.
 Printed per domain and action: milliseconds per particle-action in each engine, the ratio
 (MuJoCo's particle-actions per core-second over pybullet's), and the agreement of the
 outcomes particle by particle: the share with the same Y^-1 (symbolic state) and the
-largest difference of each weighed measurement channel in its sensor sigmas; and the share
-of MuJoCo's time inside ``mj_step`` (the rest is Python: resets, Y^-1, the per-step
-commands), which bounds what a batched call (``mujoco.rollout``) could save. The last line
+largest difference of each weighed measurement channel in its sensor sigmas; beside MuJoCo's
+time, the same particles in the one-step loop (a Python call per physics step, as before
+the worlds stepped in blocks: ``sim_workers/engines/mujoco_world.py``), checked
+bit-identical; and the share of MuJoCo's time in its stepping calls. The last line
 is the ratio over all six actions (total particle-actions over total CPU seconds).
 
     python benchmarks/bench_engines.py --quick     # 16 particles, 1 round (about a minute)
@@ -38,22 +39,44 @@ from sim_workers.shard import Shard  # noqa: E402
 
 
 class StepClock:
-    """CPU seconds spent inside ``mj_step`` by MuJoCo worlds (wraps ``MujocoWorld._step``)."""
+    """CPU seconds MuJoCo worlds spend in their stepping calls (``MujocoWorld._advance``:
+    one ``rollout`` or ``mj_step(nstep)`` per block, with the few arrays it fills)."""
 
     def __init__(self) -> None:
-        import mujoco
-
         from sim_workers.engines.mujoco_world import MujocoWorld
 
         self.seconds = 0.0
-        clock = self
+        clock, advance = self, MujocoWorld._advance
 
-        def _step(world) -> None:
+        def _advance(world, rows, logging):
             t = time.process_time()
-            mujoco.mj_step(world.model, world.data)
+            out = advance(world, rows, logging)
             clock.seconds += time.process_time() - t
+            return out
 
-        MujocoWorld._step = _step
+        MujocoWorld._advance = _advance
+
+
+class OneStepLoop:
+    """Within the block: MuJoCo worlds stepped by the engine-neutral one-step loop
+    (``GroundedWorld._run``: a Python call per physics step), as before batching."""
+
+    def __enter__(self):
+        from sim_workers.engines.mujoco_world import MujocoWorld
+        from sim_workers.grounded_world import GroundedWorld
+
+        self.blocked, MujocoWorld._run = MujocoWorld._run, GroundedWorld._run
+        return self
+
+    def __exit__(self, *exc):
+        from sim_workers.engines.mujoco_world import MujocoWorld
+
+        MujocoWorld._run = self.blocked
+
+
+def identical(a: dict, b: dict) -> bool:
+    return all(np.array_equal(a[k], b[k], equal_nan=True) for k in ("configurations", "measurements", "steps")) \
+        and bool(np.all(a["states"] == b["states"]))
 
 
 def run_case(shard: Shard, case, rows: np.ndarray, rounds: int) -> tuple[float, dict]:
@@ -95,6 +118,7 @@ def main(argv=None) -> int:
     print(f"bench_engines: {n} particles per action, best of {rounds}, CPU time per particle-action")
     total = {e: [0.0, 0] for e in ENGINES}
     clock = StepClock()
+    total_loop, same_bits = [0.0], True
     mujoco_all = 0.0           # every round and warm-up, as the clock counts
     for name in args.domains.split(","):
         domain = load(name)
@@ -110,17 +134,24 @@ def main(argv=None) -> int:
                     mujoco_all += time.process_time() - c0
                 total[e][0] += secs[e]
                 total[e][1] += n
+            with OneStepLoop():
+                loop_secs, loop_out = run_case(shards["mujoco"], case, rows, rounds)
+            total_loop[0] += loop_secs
+            same_bits &= identical(loop_out, outs["mujoco"])
             ms = {e: 1000.0 * secs[e] / n for e in ENGINES}
             same, diffs = agreement(domain, outs["pybullet"], outs["mujoco"])
             steps = {e: float(np.mean(outs[e]["steps"])) for e in ENGINES}
             print(f"{name:<15} {action:<7} pybullet {ms['pybullet']:6.2f} ms ({steps['pybullet']:.0f} steps)  "
-                  f"mujoco {ms['mujoco']:6.2f} ms ({steps['mujoco']:.0f} steps)  "
+                  f"mujoco {ms['mujoco']:6.2f} ms ({steps['mujoco']:.0f} steps; one-step loop "
+                  f"{1000.0 * loop_secs / n:6.2f} ms)  "
                   f"ratio {ms['pybullet'] / ms['mujoco']:4.2f}  same Y^-1 {same:5.1%}  "
                   f"weighed channels max diff {', '.join(f'{d:.2f}' for d in diffs)} sigma")
         for s in shards.values():
             s.close()
     rate = {e: total[e][1] / total[e][0] for e in ENGINES}
-    print(f"MuJoCo time inside mj_step: {clock.seconds / mujoco_all:.0%} (the rest is Python per particle and step)")
+    print(f"MuJoCo time in its stepping calls: {clock.seconds / mujoco_all:.0%} (the rest is Python per particle and block)")
+    print(f"MuJoCo stepped in blocks against the one-step loop: x{total_loop[0] / total['mujoco'][0]:.2f} "
+          f"particle-actions per core-second, outcomes {'bit-identical' if same_bits else 'DIFFERENT'}")
     print(f"particle-actions per core-second: pybullet {rate['pybullet']:.1f}, mujoco {rate['mujoco']:.1f}")
     print(f"ratio_mujoco_vs_pybullet={rate['mujoco'] / rate['pybullet']:.2f}")
     return 0

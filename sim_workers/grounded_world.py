@@ -249,18 +249,28 @@ class GroundedWorld:
                 return None, steps
             if t > t_end and k % REST_CHECK_EVERY == 0 and self.at_rest():
                 break
+        return self._finish(action, times, targets, t_end, steps,
+                            (force, opening) if logging else None), steps
+
+    def _finish(self, action: str, times: np.ndarray, targets: np.ndarray, t_end: float,
+                steps: int, logged: tuple | None) -> Outcome:
+        """The outcome after `steps` steps: the observed configuration, its symbolic state
+        and the domain's measurements (from the sensor log when `logged` = (wrist forces,
+        openings) per step)."""
         config = self.observe()
         after = self.domain.after_action(config, action)
         if after is not config:
             self._apply(after)
             config = after
-        if logging:
+        if logged is not None:
+            force, opening = logged
             log = SensorLog(times[:steps].copy(), np.array(force, dtype=np.float64).reshape(-1, 3),
-                            np.array(opening, dtype=np.float64), t_end, targets[:steps].copy())
+                            np.array(opening, dtype=np.float64).reshape(-1), t_end,
+                            targets[:steps].copy())
             meas = self.domain.measurements(config, log, action)
         else:
             meas = self.domain.measurements(config)
-        return Outcome(config, self.domain.symbolic_state(config), meas, steps), steps
+        return Outcome(config, self.domain.symbolic_state(config), meas, steps)
 
     def _guard(self, target: np.ndarray, was_guarded: bool, offset: np.ndarray):
         """A force-limited (guarded) segment ends where the gripper got to, not where its

@@ -181,6 +181,14 @@ def _add_gripper(spec: mujoco.MjSpec, g: Gripper) -> tuple[list[str], list[str]]
         _drive(spec, name, g.base_max_force)
     for name in FINGER_JOINTS:
         _drive(spec, name, g.grip_force)
+    for name in PALM_JOINTS[:3]:
+        # The wrist sensor's drive forces, so that a batched rollout can log them
+        # (``mujoco_world``); a sensor only reads, the physics is the same without it.
+        sensor = spec.add_sensor()
+        sensor.name = f"force_{name}"
+        sensor.type = mujoco.mjtSensor.mjSENS_ACTUATORFRC
+        sensor.objtype = mujoco.mjtObj.mjOBJ_ACTUATOR
+        sensor.objname = f"drive_{name}"
     return ["palm#0"], finger_geoms
 
 

@@ -8,18 +8,51 @@ and masses is written into the world's model in place (``mujoco_engine.patch``: 
 compiling it would give, bit for bit); anything else compiles its scene. The few model
 fields a trajectory changes (the drives' force limits) are set by every reset's first
 command.
+
+A world steps in blocks, not one Python call per physics step (issue 27): an action's
+steps are cut only where the loop must look at the state or change the model (a force
+limit changes, a guarded move ends, a rest check is due: ``blocks``); a block whose drive
+targets move is one ``mujoco.rollout`` call (targets as its open-loop controls, the
+world's own data and warm start, so nothing outside the state vector is lost), a block
+that holds its targets one ``mj_step(nstep)``. The result is bit for bit the one-step
+loop's (``GroundedWorld._run``; tests/sim_workers/test_engines.py). Why a shard's
+particles are not stepped in one rollout call across worlds: ``rollout`` runs a batch on
+one ``MjData`` per thread, restoring only the state vector per model; the sleeping
+islands and the solver's warm start live outside it, so a particle's physics would depend
+on which particle ran before it on that data.
 """
 from __future__ import annotations
 
 import mujoco
 import numpy as np
+from mujoco import rollout as mj_rollout
 
 from ..configuration import Configuration
 from ..domains import Domain
-from ..grounded_world import REST_ANGULAR, REST_LINEAR, GroundedWorld
+from ..grounded_world import REST_ANGULAR, REST_CHECK_EVERY, REST_LINEAR, GroundedWorld, Outcome
 from .mujoco_engine import MujocoScene, build_model, patch
 
+CTRL = int(mujoco.mjtState.mjSTATE_CTRL)
+FULLPHYSICS = int(mujoco.mjtState.mjSTATE_FULLPHYSICS)
 
+
+def blocks(times: np.ndarray, targets: np.ndarray, t_end: float) -> list[tuple[int, int, bool]]:
+    """The action's steps as (start, stop, rest check after the last) blocks: cut where
+    the efforts (grip force, force limit) change, a guarded move's release being one
+    such change, and after every step at which ``GroundedWorld._run`` checks for rest
+    (past the trajectory's end, every ``REST_CHECK_EVERY``-th step)."""
+    n = len(times)
+    cuts = {0, n}
+    if targets.shape[1] > 6:
+        cuts.update((np.flatnonzero(np.any(targets[1:, 5:7] != targets[:-1, 5:7], axis=1)) + 1).tolist())
+    late = np.flatnonzero(times > t_end)
+    checks = set()
+    if len(late):
+        first = -(-int(late[0]) // REST_CHECK_EVERY) * REST_CHECK_EVERY
+        checks = {k + 1 for k in range(first, n, REST_CHECK_EVERY)}
+    cuts |= checks
+    edges = sorted(cuts)
+    return [(a, b, b in checks) for a, b in zip(edges[:-1], edges[1:])]
 
 
 def wxyz(q) -> np.ndarray:
@@ -47,6 +80,7 @@ class MujocoWorld(GroundedWorld):
         self._target = np.zeros(6)          # palm x, y, z, yaw, finger q, finger q
         self._sent: tuple | None = None
         self._tare = 0.0
+        self._rollout = mj_rollout.Rollout(nthread=0)   # on the calling thread
 
     def close(self) -> None:
         self.scene = self.model = self.data = self._desc = None
@@ -104,6 +138,83 @@ class MujocoWorld(GroundedWorld):
 
     def _step(self) -> None:
         mujoco.mj_step(self.model, self.data)
+
+    def _run(self, action: str, times: np.ndarray, targets: np.ndarray, t_end: float,
+             watch) -> tuple[Outcome | None, int]:
+        """``GroundedWorld._run`` in blocks (see the module's doc); `watch` is always None
+        here (nothing is left out)."""
+        logging = bool(self.domain.logs_sensors) and bool(self.domain.senses(action))
+        base = self.domain.base_max_force
+        guarded = targets.shape[1] > 6 and bool(np.any(targets[:, 6] < base))
+        offset = np.zeros(3)
+        force, opening = [], []
+        steps = 0
+        for a, b, check in blocks(times, targets, t_end):
+            if guarded and a > 0 and targets[a - 1, 6] < base <= targets[a, 6]:
+                offset = self._tool_position() - self._commanded_tool()
+            rows = targets[a:b]
+            if np.any(offset):
+                rows = rows.copy()
+                rows[:, :3] += offset
+            self._set_gripper(rows[0])
+            logged = self._advance(rows, logging)
+            if logging:
+                force.append(logged[0])
+                opening.append(logged[1])
+            steps = b
+            if check and self.at_rest():
+                break
+        if logging:
+            logged = (np.concatenate(force), np.concatenate(opening))
+        return self._finish(action, times, targets, t_end, steps, logged if logging else None), steps
+
+    def _controls(self, rows: np.ndarray) -> np.ndarray:
+        """The drives' targets (``_set_gripper``'s, one row per step) as rollout controls."""
+        s = self.scene
+        ctrl = np.empty((len(rows), self.model.nu))
+        q = rows[:, 4] / 2.0 + s.finger_inner
+        ctrl[:, list(s.palm_actuators)] = rows[:, :4]
+        ctrl[:, s.palm_actuators[2]] = rows[:, 2] + s.palm_offset
+        ctrl[:, s.finger_actuators[0]] = q
+        ctrl[:, s.finger_actuators[1]] = q
+        return ctrl
+
+    def _advance(self, rows: np.ndarray, logging: bool):
+        """Step once per row of drive targets (efforts constant: ``_set_gripper`` has set
+        them and the first row); with `logging`, the wrist forces (n, 3) and openings (n,)."""
+        m, d, s = self.model, self.data, self.scene
+        n = len(rows)
+        still = n == 1 or not np.any(rows[1:, :5] != rows[0, :5])
+        if still and not logging:
+            mujoco.mj_step(m, d, n)
+            return None
+        ctrl = self._controls(rows)
+        state0 = np.empty(mujoco.mj_stateSize(m, FULLPHYSICS))
+        mujoco.mj_getState(m, d, state0, FULLPHYSICS)
+        states = np.empty((1, n, len(state0))) if logging else None
+        sensed = np.empty((1, n, m.nsensordata)) if logging else None
+        t0 = d.time
+        self._rollout.rollout([m], [d], state0[None], ctrl[None], control_spec=CTRL, skip_checks=True,
+                              nstep=n, initial_warmstart=d.qacc_warmstart.copy()[None],
+                              state=states, sensordata=sensed)
+        done = n
+        if any(d.warning.number):
+            # rollout stops a batch at a warning (an unstable step); the one-step loop
+            # goes on, so the rest is stepped here as it would have been.
+            done = int(round((d.time - t0) / m.opt.timestep))
+            for k in range(done, n):
+                d.ctrl[:] = ctrl[k]
+                mujoco.mj_step(m, d)
+                if logging:
+                    mujoco.mj_getState(m, d, states[0, k], FULLPHYSICS)
+                    sensed[0, k] = d.sensordata
+        self._target[:] = ctrl[-1, list(s.palm_actuators) + list(s.finger_actuators)]
+        if not logging:
+            return None
+        force = sensed[0, :, :3].copy()
+        force[:, 2] += self._tare
+        q = states[0][:, 1 + np.array(s.finger_qpos)]
+        return force, 2.0 * (np.mean(q, axis=1) - s.finger_inner)
 
     def observe(self) -> Configuration:
         s, d = self.scene, self.data

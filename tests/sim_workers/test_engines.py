@@ -173,3 +173,54 @@ def test_a_scene_that_is_not_boxes_is_compiled_not_patched():
     assert _patchable(a, b)
     moved_tray = replace(b, bodies=tuple(replace(x, friction=0.9) if x.name == "container" else x for x in b.bodies))
     assert not _patchable(a, moved_tray)       # a friction is a pair's: compiled
+
+
+def test_blocks_cut_where_efforts_change_and_after_each_rest_check():
+    from sim_workers.engines.mujoco_world import blocks
+    from sim_workers.grounded_world import REST_CHECK_EVERY
+
+    times = np.arange(1, 61) * 0.01
+    targets = np.zeros((60, 7))
+    targets[:, 6] = 50.0
+    targets[10:20, 6] = 3.0                      # a guarded move: its start and release
+    out = blocks(times, targets, t_end=0.30)     # late from step 30 on (t > 0.30)
+    edges = [a for a, _, _ in out] + [out[-1][1]]
+    checks = [b for _, b, c in out if c]
+    assert checks == [k + 1 for k in range(36, 60, REST_CHECK_EVERY)]
+    assert edges == sorted({0, 10, 20, 60, *checks})
+    assert blocks(times, targets[:, :6], t_end=1.0) == [(0, 60, False)]
+
+
+@pytest.mark.parametrize("name,options,actions", [
+    ("container", {"n_blocks": 4}, ["pickup(r,b1,init)", "stack(r,b1,c)"]),
+    ("stack_and_push", {"unknown_density": True},
+     ["pickup(r,b1,init)", "stack(r,b1,start)", "pickup(r,b2,init)", "stack(r,b2,tower)",
+      "push(r,tower,start,goal)"]),
+])
+def test_mujoco_stepping_in_blocks_is_the_one_step_loop_bit_for_bit(name, options, actions, monkeypatch):
+    """A MuJoCo world steps an action in blocks (rollout calls and mj_step(nstep)); the
+    outcome, sensor log and step count must be the one-step loop's exactly, with a belief
+    10 % off so that grasps, guarded pushes and settling all happen."""
+    from sim_workers.engines.mujoco_world import MujocoWorld
+
+    def episode():
+        domain = load(name, engine="mujoco", **options)
+        truth = domain.true_properties()
+        believed = domain.props_from_row(np.asarray(domain.L.truth) * 1.1)
+        outs = []
+        with GroundedWorld(domain) as w:
+            config = w.reset(domain.initial_configuration(truth), truth)
+            for action in actions:
+                o = act(w, domain, config, believed, action)
+                outs.append(o)
+                config = o.configuration
+        return outs
+
+    blocked = episode()
+    monkeypatch.setattr(MujocoWorld, "_run", GroundedWorld._run)
+    stepped = episode()
+    assert any(np.isfinite(o.measurements).any() for o in blocked)
+    for a, b in zip(blocked, stepped):
+        assert a.state == b.state and a.steps == b.steps
+        assert np.array_equal(a.configuration.to_array(), b.configuration.to_array())
+        assert np.array_equal(a.measurements, b.measurements, equal_nan=True)
