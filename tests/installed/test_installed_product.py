@@ -103,16 +103,23 @@ def docker_context(tmp_path_factory) -> Path:
     return ctx
 
 
-@pytest.fixture(scope="module")
-def venv(tmp_path_factory, docker_context) -> dict:
-    """A fresh venv in which the image's `RUN ... pip install ...` line ran verbatim."""
-    root = tmp_path_factory.mktemp("fresh")
+def fresh_venv(root: Path) -> tuple[Path, dict]:
+    """A new venv under `root`: its bin folder and an environment that uses it and nothing
+    of the test session's (no PYTHONPATH, token or Ray address)."""
     subprocess.run([sys.executable, "-m", "venv", str(root / "venv")], check=True, timeout=120)
     bindir = root / "venv" / "bin"
     env = {k: v for k, v in os.environ.items()
            if k not in ("PYTHONPATH", "VIRTUAL_ENV", "PYTHONHOME", "TMOC_API_TOKEN", "RAY_ADDRESS")}
     env.update(PATH=f"{bindir}{os.pathsep}{env.get('PATH', '')}", VIRTUAL_ENV=str(root / "venv"),
                RAY_USAGE_STATS_ENABLED="0", PIP_DISABLE_PIP_VERSION_CHECK="1")
+    return bindir, env
+
+
+@pytest.fixture(scope="module")
+def venv(tmp_path_factory, docker_context) -> dict:
+    """A fresh venv in which the image's `RUN ... pip install ...` line ran verbatim."""
+    root = tmp_path_factory.mktemp("fresh")
+    bindir, env = fresh_venv(root)
     install = [a for op, a in dockerfile_instructions() if op == "RUN" and "pip install" in a]
     assert len(install) == 1, install
     proc = subprocess.run(["bash", "-euo", "pipefail", "-c", install[0]], cwd=docker_context,

@@ -9,16 +9,14 @@ one line naming the missing package.
 from __future__ import annotations
 
 import json
-import os
 import re
 import subprocess
-import sys
 import zipfile
 from pathlib import Path
 
 import pytest
 
-from tests.installed.test_installed_product import run_in
+from tests.installed.test_installed_product import fresh_venv, run_in
 
 pytestmark = pytest.mark.timeout(1800)
 
@@ -38,13 +36,8 @@ def bare(tree_wheel, tmp_path_factory) -> dict:
     reqs = requirements(tree_wheel)
     kept = [r for r in reqs if re.split(r"[ ;<>=!~\[]", r, maxsplit=1)[0].lower() != "pybullet"]
     assert len(kept) == len(reqs) - 1, reqs          # pybullet is declared, once
-    root = tmp_path_factory.mktemp("nopybullet")
-    subprocess.run([sys.executable, "-m", "venv", str(root / "venv")], check=True, timeout=120)
-    bindir = root / "venv" / "bin"
-    env = {k: v for k, v in os.environ.items()
-           if k not in ("PYTHONPATH", "VIRTUAL_ENV", "PYTHONHOME", "TMOC_API_TOKEN", "RAY_ADDRESS")}
-    env.update(PATH=f"{bindir}{os.pathsep}{env.get('PATH', '')}", VIRTUAL_ENV=str(root / "venv"),
-               RAY_USAGE_STATS_ENABLED="0", PIP_DISABLE_PIP_VERSION_CHECK="1")
+    bindir, env = fresh_venv(tmp_path_factory.mktemp("nopybullet"))
+    root = bindir.parents[1]
     python = str(bindir / "python")
     for args in (["--no-deps", str(tree_wheel)], kept):
         proc = subprocess.run([python, "-m", "pip", "install", "-q", *args], env=env, capture_output=True,
