@@ -12,6 +12,9 @@ Tables:
                     task: the oldest are deleted when a new one comes
   session_steps     the observations of a session's current episode, in order; with the
                     checkpoint they rebuild the session exactly after a restart
+  steps             one row per (task or session, episode, step): the step's record
+                    (coordinator/step_record.py, zlib-compressed JSON) that `GET
+                    .../export` writes as MCAP
 """
 from __future__ import annotations
 
@@ -75,6 +78,13 @@ CREATE TABLE IF NOT EXISTS frames (
     created_at REAL NOT NULL,
     UNIQUE (run_id, name)
 );
+CREATE TABLE IF NOT EXISTS steps (
+    run_id TEXT NOT NULL,
+    episode INTEGER NOT NULL,
+    step INTEGER NOT NULL,
+    record BLOB NOT NULL,
+    PRIMARY KEY (run_id, episode, step)
+) WITHOUT ROWID;
 CREATE TABLE IF NOT EXISTS session_steps (
     session_id TEXT NOT NULL,
     episode INTEGER NOT NULL,

@@ -373,7 +373,7 @@ class SessionManager:
                     posterior=s.posterior(), belief=self._belief(live),
                     finished=_jsonable(record) if finished else None,
                     checkpoint=s.to_checkpoint() if finished else None, status=status,
-                    last_reply=last)
+                    last_reply=last, step_record=s.step_records[-1] if s.step_records else None)
                 live.last_reply = last
             except Exception:
                 self._live.pop(session_id, None)         # rebuilt from the store: unchanged

@@ -16,6 +16,7 @@ import sqlite3
 import threading
 import time
 import uuid
+import zlib
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any, Iterator
@@ -27,6 +28,16 @@ TERMINAL = ("succeeded", "failed", "cancelled")
 _TASK_JSON = ("spec", "latest", "belief", "checkpoint", "result", "transition")
 _SESSION_JSON = ("spec", "checkpoint", "episode_start", "pending", "posterior", "belief", "latest",
                  "last_reply")
+
+
+_INSERT_STEP = "INSERT OR IGNORE INTO steps (run_id, episode, step, record) VALUES (?, ?, ?, ?)"
+
+
+def _step_row(run_id: str, record: dict) -> tuple:
+    """A step record as a row of ``steps`` (its JSON zlib-compressed: trajectories are most
+    of it and compress ~5x)."""
+    return (run_id, int(record["episode"]), int(record["step"]),
+            zlib.compress(json.dumps(record, separators=(",", ":")).encode(), 6))
 
 
 def _dumps(value: Any) -> str | None:
@@ -217,18 +228,22 @@ class Store:
         return self.get_task(task_id, checkpoint=True)
 
     def record_episode(self, run_id: str, record: dict, checkpoint: dict | None,
-                       belief: dict | None, transition: list | None = None) -> bool:
-        """Store one task episode, its checkpoint, progress (and T per context) atomically;
-        False if the episode was already stored (nothing is then changed)."""
+                       belief: dict | None, transition: list | None = None,
+                       steps: list[dict] | None = None) -> bool:
+        """Store one task episode, its checkpoint, progress (and T per context, and its
+        step records) atomically; False if the episode was already stored (nothing is
+        then changed)."""
         now = time.time()
         rec, ckpt, bel = _dumps(record), _dumps(checkpoint), _dumps(belief)   # outside the lock
         trans = _dumps(transition)
+        packed = [_step_row(run_id, r) for r in steps or ()]
         with self._write() as db:
             cur = db.execute("INSERT INTO episodes (run_id, episode, record, created_at) VALUES (?, ?, ?, ?) "
                              "ON CONFLICT (run_id, episode) DO NOTHING",
                              (run_id, int(record["episode"]), rec, now))
             if cur.rowcount == 0:
                 return False
+            db.executemany(_INSERT_STEP, packed)
             db.execute("UPDATE tasks SET episodes_done = (SELECT COUNT(*) FROM episodes WHERE run_id = ?), "
                        "latest = ?, checkpoint = COALESCE(?, checkpoint), belief = COALESCE(?, belief), "
                        "transition = COALESCE(?, transition), updated_at = ? WHERE id = ?",
@@ -264,6 +279,19 @@ class Store:
                            (now, task_id))
                 return status, True
             return status, False
+
+    def steps(self, run_id: str, batch: int = 200) -> Iterator[dict]:
+        """The step records of a task or session, in order (read `batch` rows at a time:
+        an export of a long session holds one batch in memory, not the session)."""
+        after = (-1, -1)
+        while True:
+            rows = self._all("SELECT episode, step, record FROM steps WHERE run_id = ? AND (episode, step) > (?, ?) "
+                             "ORDER BY episode, step LIMIT ?", (run_id, after[0], after[1], batch))
+            for _, _, blob in rows:
+                yield json.loads(zlib.decompress(blob))
+            if len(rows) < batch:
+                return
+            after = (rows[-1][0], rows[-1][1])
 
     def episodes(self, run_id: str, after: int = -1, limit: int | None = None) -> list[tuple[int, str]]:
         """(episode, record JSON text) with episode > `after`, in order."""
@@ -362,13 +390,16 @@ class Store:
                             report: dict, *, pending: dict | None, posterior: dict | None,
                             belief: dict | None, finished: dict | None = None,
                             checkpoint: dict | None = None, status: str = "active",
-                            last_reply: dict | None = None) -> None:
+                            last_reply: dict | None = None, step_record: dict | None = None) -> None:
         """One observed step; when it ends the episode (`finished` is the episode record),
         also the episode row and the new checkpoint, in the same transaction. `last_reply`
         (the step id, the observation and the reply sent) answers a replay of this step."""
         now = time.time()
+        packed = None if step_record is None else _step_row(session_id, step_record)
         with self._write() as db:
             db.execute("UPDATE sessions SET last_reply = ? WHERE id = ?", (_dumps(last_reply), session_id))
+            if packed is not None:
+                db.execute(_INSERT_STEP, packed)
             db.execute("INSERT INTO session_steps (session_id, episode, step, observation, report) "
                        "VALUES (?, ?, ?, ?, ?)",
                        (session_id, episode, step, _dumps(observation), _dumps(report)))

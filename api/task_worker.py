@@ -167,7 +167,8 @@ class TaskWorker:
             self.beat()
             checkpoint[_Budget.KEY] = budget.spent()
             belief = session.belief.summary() if session.belief is not None else None
-            self.store.record_episode(task_id, record, checkpoint, belief, session.transition_table())
+            self.store.record_episode(task_id, record, checkpoint, belief, session.transition_table(),
+                                      steps=session.step_records)
             self._nodes[task_id] = checkpoint.get("nodes", [])
             self.notifier.notify(task_id)
 

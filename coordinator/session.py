@@ -33,6 +33,7 @@ from .particle_budget import next_count
 from .reality import Observation
 from .reweighting import Reweighting
 from .run_config import AGENT_STREAM, RunConfig, seed_stream, stored_run_config
+from .step_record import step_record
 from .transit import plan_pre_pose_transit
 from .transition_model import TransitionModel
 
@@ -105,6 +106,9 @@ class Session:
         # state; not checkpointed (the recorder holds a pybullet client of this process).
         self.frames = None
         self._prediction = None
+        # The current episode's steps as records (coordinator.step_record: what an export
+        # needs); not checkpointed: a run or session resumes at an episode's start.
+        self.step_records: list[dict] = []
 
     def _point_belief(self, config: RunConfig) -> Belief:
         """Every particle at the true properties (L given, as in the paper's real-robot
@@ -166,6 +170,7 @@ class Session:
         self.plan = []
         self.pending = None
         self.stats = EpisodeStats()
+        self.step_records = []
         self._t0 = time.perf_counter()
 
     @property
@@ -305,6 +310,11 @@ class Session:
         self.experience.add_real(before.state, step.action, observation.state, step.expected)
         self.transition = self._transition_model()
         self._account(before.state, step, observation.state, success)
+        self.step_records.append(step_record(
+            episode=self.episode, step=self.stats.actions - 1, action=step.action, pose=step.pose,
+            trajectory=step.trajectory, before=before, after=observation, expected=step.expected,
+            success=success, belief=self.posterior(), object_names=list(self.domain.object_names),
+            channels=[c["name"] for c in self.domain.measurement_channels()]))
         if self.frames is not None and not success:
             self.frames.failed_action(self.episode, self.stats.actions - 1, step.action, step.expected,
                                       observation.configuration, observation.state,

@@ -114,6 +114,16 @@ class TaskDomain(abc.ABC):
                     costs: Mapping[str, float]) -> tuple[float, dict]:
         """The realised reward terms of one step and its metrics."""
 
+    def grounded_actions(self, n_blocks: int) -> tuple[str, ...]:
+        """Every grounded action of a task of `n_blocks` objects, in a fixed order (the
+        discrete actions of the Gymnasium view, ``coordinator.gym_env``)."""
+        raise NotImplementedError(f"domain {self.name!r} does not list its grounded actions")
+
+    def atoms(self, n_blocks: int) -> tuple[str, ...]:
+        """Every atom a state of `n_blocks` objects can hold, planned or observed by Y^-1,
+        in a fixed order (the Gymnasium view's symbolic observation)."""
+        raise NotImplementedError(f"domain {self.name!r} does not list its atoms")
+
     def actions_for_loads(self, n_blocks: int, loads: Sequence[int]) -> list[str]:
         """The plan that moves `loads` objects per trip in turn (the experiments judge a
         plan's split against T*'s optimum with it)."""

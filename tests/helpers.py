@@ -1,6 +1,6 @@
 """Helpers more than one test module needs, in one place (not copies): the Dockerfile's
-instructions. (The SSE parser and the task/session waits live in tests/api/conftest.py,
-which only the API tests use.)"""
+instructions. (The SSE parser, the robot-session loop and the task/session waits live in
+tests/api/conftest.py, which only the API tests use.)"""
 from __future__ import annotations
 
 from pathlib import Path

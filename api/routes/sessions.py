@@ -9,8 +9,10 @@ import json
 from typing import Annotated
 
 from fastapi import APIRouter, HTTPException, Query, Response
+from fastapi.responses import StreamingResponse
 from starlette.concurrency import run_in_threadpool
 
+from .. import exports
 from .. import schemas as S
 from .. import views
 from ..deps import SessionId, SessionsDep, StoreDep, session_or_404
@@ -121,6 +123,17 @@ async def observe(session_id: SessionId, observation: S.StepObservation, session
     fit the pending action (none pending, another action, a configuration of another
     scene) gets a 409 and changes nothing."""
     return await _session_call(sessions.observe, session_id, observation.model_dump(mode="json"))
+
+
+@routes.get("/sessions/{session_id}/export", tags=["sessions"], response_class=Response,
+            responses={**exports.RESPONSES, **error_responses(404)})
+async def export_session(session_id: SessionId, store: StoreDep):
+    """Every step the robot took in this session (action, commanded trajectory, observed
+    configurations, measurements, outcome, belief) as MCAP (``tmoc export``)."""
+    row = session_or_404(store, session_id)
+    f = await run_in_threadpool(exports.mcap_file, store, session_id, "session", row["spec"])
+    return StreamingResponse(exports.chunks(f), media_type=exports.MEDIA_TYPE,
+                             headers=exports.download(session_id))
 
 
 @routes.get("/sessions/{session_id}/belief", response_model=S.BeliefView, tags=["sessions"],

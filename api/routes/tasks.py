@@ -15,6 +15,7 @@ from fastapi.encoders import jsonable_encoder
 from fastapi.responses import Response, StreamingResponse
 from starlette.concurrency import run_in_threadpool
 
+from .. import exports
 from .. import schemas as S
 from .. import views
 from ..deps import (NotifierDep, SettingsDep, ShuttingDownDep, StoreDep, TaskId, TaskWorkerDep,
@@ -236,6 +237,15 @@ async def task_curve(task_id: TaskId, store: StoreDep):
     records = [json.loads(r) for _, r in store.episodes(task_id)]
     return {"run_id": task_id, "agent": row["spec"]["agent"],
             "true_size": row["spec"].get("true_size"), "points": views.curve_points(records)}
+
+
+@routes.get("/tasks/{task_id}/export", tags=["tasks"], response_class=Response,
+            responses={**exports.RESPONSES, **error_responses(404)})
+async def export_task(task_id: TaskId, store: StoreDep):
+    """Every step of the task's finished episodes as MCAP (``tmoc export``)."""
+    row = task_or_404(store, task_id)
+    f = await run_in_threadpool(exports.mcap_file, store, task_id, "task", row["spec"])
+    return StreamingResponse(exports.chunks(f), media_type=exports.MEDIA_TYPE, headers=exports.download(task_id))
 
 
 @routes.get("/tasks/{task_id}/curve.png", tags=["tasks"], response_class=Response,

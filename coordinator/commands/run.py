@@ -10,6 +10,7 @@ from pydantic import ValidationError
 
 from . import UsageError
 from ..run_config import RunConfig
+from ..step_record import STEPS_FILE
 
 
 # Flags and the RunConfig fields they set (the rest, e.g. pose_rule or error_rate, come from
@@ -205,8 +206,14 @@ def main(args) -> int:
     from tqdm import tqdm
 
     bar = tqdm(total=config.episodes, desc=f"{config.agent}", unit="ep", disable=args.no_progress)
+    # Every real step, as it happened (coordinator/step_record.py): `tmoc export` reads it.
+    Path(args.out).mkdir(parents=True, exist_ok=True)
+    steps_file = open(Path(args.out) / STEPS_FILE, "w", encoding="utf-8")
 
     def on_episode(record, session, checkpoint):
+        for step in session.step_records:
+            steps_file.write(json.dumps(step, separators=(",", ":")) + "\n")
+        steps_file.flush()
         post = record["posterior"]
         counts = record.get("particles_per_action") or [0]
         if "size_mean" in post:
@@ -231,11 +238,13 @@ def main(args) -> int:
     try:
         result = run(config, ray_address=args.ray_address, on_episode=on_episode, frames=sink)
     finally:
+        steps_file.close()
         if tracker is not None:
             tracker.close()
     bar.close()
     path, png = write_result(result, Path(args.out))
-    out = {"summary": result["summary"], "runtime": result["runtime"], "result": str(path), "plot": str(png)}
+    out = {"summary": result["summary"], "runtime": result["runtime"], "result": str(path), "plot": str(png),
+           "steps": str(Path(args.out) / STEPS_FILE)}
     if sink is not None:
         out["frames"] = {"folder": str(sink.folder), "count": len(sink.index)}
     print(json.dumps(out, indent=2))

@@ -97,6 +97,17 @@ class ContainerTask(TaskDomain):
         return (("pickup", 0),) + tuple(("stack", k) for k in range(n)) \
             + tuple(("push", k) for k in range(1, n + 1))
 
+    def grounded_actions(self, n_blocks: int) -> tuple[str, ...]:
+        bs = [f"b{i}" for i in range(1, int(n_blocks) + 1)]
+        return tuple(f"pickup(r,{b},{p})" for b in bs for p in symbolic.PICKUP_PLACES) \
+            + tuple(f"stack(r,{b},c)" for b in bs) + ("push(r,c,init,goal)", "push(r,c,goal,init)")
+
+    def atoms(self, n_blocks: int) -> tuple[str, ...]:
+        bs = [f"b{i}" for i in range(1, int(n_blocks) + 1)]
+        return tuple(f"is_in({b},{p})" for b in bs for p in symbolic.BLOCK_PLACES) \
+            + tuple(f"is_holding(r,{b})" for b in bs) + tuple(f"at_container({b},c)" for b in bs) \
+            + tuple(f"is_in(c,{p})" for p in symbolic.CONTAINER_PLACES) + ("hand_empty(r)",)
+
     def context_of(self, state: frozenset[str], action: str) -> Context | None:
         return context_of(state, action)
 

@@ -223,6 +223,17 @@ class StackAndPushTask(TaskDomain):
         return (("pickup", 0),) + tuple(("stack", h) for h in range(n)) \
             + tuple(("push", h) for h in range(1, n + 1))
 
+    def grounded_actions(self, n_blocks: int) -> tuple[str, ...]:
+        bs = [f"b{i}" for i in range(1, int(n_blocks) + 1)]
+        return tuple(f"pickup(r,{b},{p})" for b in bs for p in PICKUP_PLACES) \
+            + tuple(f"stack(r,{b},tower)" for b in bs) + ("push(r,tower,start,goal)",)
+
+    def atoms(self, n_blocks: int) -> tuple[str, ...]:
+        bs = [f"b{i}" for i in range(1, int(n_blocks) + 1)]
+        return tuple(f"is_in({b},{p})" for b in bs for p in PLACES) \
+            + tuple(f"is_holding(r,{b})" for b in bs) + ("hand_empty(r)",) \
+            + tuple(f"on({b},start)" for b in bs) + tuple(f"on({b},{b2})" for b in bs for b2 in bs if b2 != b)
+
     def context_of(self, state: frozenset[str], action: str) -> Context:
         return context_of(state, action)
 

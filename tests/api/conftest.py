@@ -11,6 +11,7 @@ import time
 from pathlib import Path
 
 import httpx
+import numpy as np
 import pytest
 
 TOKEN = "test-token-0123456789"
@@ -141,6 +142,37 @@ def stream_events(client: httpx.Client, task_id: str, last_event_id: str | None 
         assert r.status_code == 200, r.read()
         assert r.headers["content-type"].startswith("text/event-stream")
         return parse_sse(r.iter_lines())
+
+
+# -- the robot-session loop: a test robot (a SimulatedReality) answering a session --------
+def observation_body(outcome, step=None, **extra) -> dict:
+    """An observation body; with `step` (a pending step, or an action name) it answers it."""
+    body = {"configuration": outcome.configuration.to_dict(), **extra}
+    if isinstance(step, dict):
+        body["action"] = step["action"]
+        if "step_id" in step:        # (a server from before step ids sends none)
+            body["step_id"] = step["step_id"]
+    elif step is not None:
+        body.update(action=step, step_id="s_none:0:0")
+    return body
+
+
+def act_and_observe(client: httpx.Client, sid: str, robot, step: dict, **extra):
+    """Run the pending `step` on the test robot and post what it observed: (the response,
+    the robot's outcome)."""
+    outcome = robot.execute(np.array(step["trajectory"]), step["action"])
+    return client.post(f"/v1/sessions/{sid}/observations", json=observation_body(outcome, step, **extra)), outcome
+
+
+def drive_episode(client: httpx.Client, sid: str, robot, step: dict | None) -> list[dict]:
+    """Act and observe from `step` until the episode ends; every reply, in order."""
+    replies = []
+    while step is not None:
+        r, _ = act_and_observe(client, sid, robot, step)
+        assert r.status_code == 200, r.text
+        replies.append(r.json())
+        step = replies[-1]["next"]
+    return replies
 
 
 def wait_for(predicate, timeout: float = 180, every: float = 0.2, what: str = "condition"):

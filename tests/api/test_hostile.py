@@ -17,7 +17,7 @@ from coordinator.reality import SimulatedReality
 from planner import stack_and_push_symbolic as sps
 from planner import symbolic as sy
 
-from .conftest import Server, free_port, stream_events, tmoc, wait_for
+from .conftest import Server, free_port, observation_body, stream_events, tmoc, wait_for
 
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(300)]
 
@@ -163,8 +163,7 @@ def test_a_busy_session_does_not_hold_the_thread_pool(tmp_path):
         assert r.status_code == 201, r.text
         sid, step = r.json()["id"], r.json()["next"]
         out = robot.execute(np.array(step["trajectory"]), step["action"])
-        body = {"action": step["action"], "step_id": step["step_id"],
-                "configuration": out.configuration.to_dict()}
+        body = observation_body(out, step)
         headers = server.headers
 
         def get(path):

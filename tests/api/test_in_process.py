@@ -62,3 +62,37 @@ def test_the_schema_offers_the_installed_engines_and_a_session_has_no_reality_en
     assert engines == ["pybullet", "mujoco"] and "reality_engine" in task
     session = schemas["SessionCreateContainer"]["properties"]
     assert "engine" in session and "reality_engine" not in session
+
+
+def test_a_robot_sessions_steps_export_as_mcap_without_ray(client):
+    """A session whose agent keeps no belief (tmp_rl: no particle worlds, no Ray) driven by
+    a test robot for two steps: its export reads back with mcap's own reader, step for step."""
+    import io
+    import json
+
+    import numpy as np
+    from mcap.reader import make_reader
+
+    from coordinator.reality import SimulatedReality
+
+    from .conftest import drive_episode
+
+    robot = SimulatedReality("container", {"n_blocks": 3}, {"block_sizes": np.full(3, 0.045)})
+    try:
+        start = robot.start_episode(np.random.default_rng(0))
+        r = client.post("/v1/sessions", json={"agent": "tmp_rl", "episodes": 1, "max_steps": 2, "n_blocks": 3,
+                                              "observation": {"configuration": start.configuration.to_dict()}})
+        assert r.status_code == 201, r.text
+        sid = r.json()["id"]
+        replies = drive_episode(client, sid, robot, r.json()["next"])
+    finally:
+        robot.close()
+    exported = client.get(f"/v1/sessions/{sid}/export")
+    assert exported.status_code == 200 and exported.headers["content-type"] == "application/octet-stream"
+    reader = make_reader(io.BytesIO(exported.content))
+    steps = [json.loads(m.data) for _, ch, m in reader.iter_messages(topics=["/tmoc/step"])]
+    assert [s["action"] for s in steps] == [b["report"]["action"] for b in replies]
+    assert [s["state_after"] for s in steps] == [b["report"]["state"] for b in replies]
+    assert len(steps) == 2 and steps[1]["configuration_before"] == steps[0]["configuration_after"]
+    assert client.get("/v1/sessions/s_doesnotexist/export").status_code == 404
+    assert client.get("/v1/tasks/t_doesnotexist/export").status_code == 404

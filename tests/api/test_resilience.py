@@ -20,7 +20,7 @@ import pytest
 
 from coordinator.reality import SimulatedReality
 
-from .conftest import Server, free_port, stream_events, tmoc, wait_for
+from .conftest import Server, act_and_observe, free_port, observation_body, stream_events, tmoc, wait_for
 
 # Slow: real tasks on a served Ray. Timeout: own servers (90 s to start) and event streams of up to 240 s.
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(600)]
@@ -36,11 +36,7 @@ def robot():
 
 
 def _observe(c: httpx.Client, sid: str, robot, step: dict) -> httpx.Response:
-    out = robot.execute(np.array(step["trajectory"]), step["action"])
-    body = {"action": step["action"], "configuration": out.configuration.to_dict()}
-    if "step_id" in step:        # (so that this test also runs against a server without them)
-        body["step_id"] = step["step_id"]
-    return c.post(f"/v1/sessions/{sid}/observations", json=body)
+    return act_and_observe(c, sid, robot, step)[0]
 
 
 def test_ray_outlives_the_request_thread_that_first_needed_it(tmp_path, robot):
@@ -174,8 +170,7 @@ def test_a_replayed_observation_changes_nothing_and_other_sessions_refuse_it(tmp
             assert second["next"]["action"] == step["action"]            # same pending action
             assert second["next"]["step_id"] != step["step_id"]
             out = robot.execute(np.array(step["trajectory"]), step["action"])
-            obs = {"action": step["action"], "step_id": step["step_id"],
-                   "configuration": out.configuration.to_dict()}
+            obs = observation_body(out, step)
             r = c.post(f"/v1/sessions/{first['id']}/observations", json=obs)
             assert r.status_code == 200, r.text
             belief = c.get(f"/v1/sessions/{first['id']}/belief").json()

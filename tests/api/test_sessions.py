@@ -2,14 +2,18 @@
 the service step by step; observations that do not fit get a 409 and change nothing."""
 from __future__ import annotations
 
+import io
+import json
 import re
 
 import numpy as np
 import pytest
+from mcap.reader import make_reader
 
+from coordinator.cli import main
 from coordinator.reality import SimulatedReality
 
-from .conftest import stream_events
+from .conftest import TOKEN, drive_episode, observation_body, stream_events
 
 # Slow: real tasks on a served Ray. Timeout: a task's event stream (180 s) after the shared server's start (90 s).
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(300)]
@@ -25,17 +29,20 @@ def robot():
     world.close()
 
 
-def _observation(outcome, step=None, **extra) -> dict:
-    """An observation body; with `step` (a pending step, or an action name) it answers it."""
-    body = {"configuration": outcome.configuration.to_dict(), **extra}
-    if isinstance(step, dict):
-        body.update(action=step["action"], step_id=step["step_id"])
-    elif step is not None:
-        body.update(action=step, step_id="s_none:0:0")
-    return body
+_observation = observation_body
 
 
-def test_a_robot_driven_session_converges_like_a_simulated_task(client, robot):
+def read_mcap(data: bytes) -> tuple[dict[str, list[dict]], dict]:
+    """{topic: [decoded JSON messages]} and the ``tmoc`` metadata, by mcap's own reader."""
+    reader = make_reader(io.BytesIO(data))
+    topics: dict[str, list[dict]] = {}
+    for _, channel, message in reader.iter_messages():
+        topics.setdefault(channel.topic, []).append(json.loads(message.data))
+    meta = next(m.metadata for m in reader.iter_metadata() if m.name == "tmoc")
+    return topics, meta
+
+
+def test_a_robot_driven_session_converges_like_a_simulated_task(client, robot, server, tmp_path):
     learning = {"agent": "tmoc", "particles": 24, "episodes": 1, "max_steps": 6, "seed": 3}
     start = robot.start_episode(np.random.default_rng(0))
     r = client.post("/v1/sessions", json={**learning, "observation": _observation(start)})
@@ -46,12 +53,13 @@ def test_a_robot_driven_session_converges_like_a_simulated_task(client, robot):
     assert created["in_episode"] and step["episode"] == 0 and step["step"] == 0
     assert step["trajectory_columns"] == ["t", "x", "y", "z", "yaw", "opening"]
 
-    reports = []
+    reports, executed = [], []
     while step is not None:
         # GET next is idempotent: the same pending step until it is observed.
         pending = client.get(f"/v1/sessions/{sid}/next").json()["pending"]
         assert pending == step
         outcome = robot.execute(np.array(step["trajectory"]), step["action"])
+        executed.append(step["trajectory"])
         r = client.post(f"/v1/sessions/{sid}/observations", json=_observation(outcome, step))
         assert r.status_code == 200, r.text
         body = r.json()
@@ -69,12 +77,33 @@ def test_a_robot_driven_session_converges_like_a_simulated_task(client, robot):
     assert [p["episode"] for p in client.get(f"/v1/sessions/{sid}/curve").json()["points"]] == [0]
     assert client.get(f"/v1/sessions/{sid}/next").status_code == 409
 
+    # Every step the robot took, exported as MCAP and read back with mcap's own reader.
+    exported = client.get(f"/v1/sessions/{sid}/export")
+    assert exported.status_code == 200 and exported.content[:8] == b"\x89MCAP0\r\n"
+    topics, meta = read_mcap(exported.content)
+    steps, trajs = topics["/tmoc/step"], topics["/tmoc/trajectory"]
+    assert [m["action"] for m in steps] == [r["action"] for r in reports]
+    assert [m["state_after"] for m in steps] == [r["state"] for r in reports]
+    assert [m["success"] for m in steps] == [r["success"] for r in reports]
+    assert [len(t["points"]) for t in trajs] == [len(t) for t in executed]
+    assert trajs[0]["points"] == executed[0] and trajs[0]["columns"] == ["t", "x", "y", "z", "yaw", "opening"]
+    assert steps[0]["configuration_before"] == pytest.approx(start.configuration.to_array().tolist())
+    assert steps[-1]["belief"]["size_mean"] == pytest.approx(post["posterior"]["size_mean"])
+    assert [e["episode"] for e in topics["/tmoc/episode"]] == [0]
+    assert meta["source"] == "session" and meta["domain"] == "container"
+    # ... and by `tmoc export` from the server, to a file.
+    out = tmp_path / "robot.mcap"
+    assert main(["export", "--server", server.base, "--session", sid, "--token", TOKEN, "-o", str(out)]) == 0
+    assert read_mcap(out.read_bytes())[0]["/tmoc/step"] == steps
+
     # The same learner as a simulated task with the same truth gets there too.
     task = client.post("/v1/tasks", json={**learning, "true_size": TRUE_SIZE}).json()["id"]
     events = stream_events(client, task)
     assert events[-1]["data"]["status"] == "succeeded"
     sim = events[-2]["data"]["posterior"]
     assert abs(sim["size_mean"] - TRUE_SIZE) < 0.003, sim
+    task_steps = read_mcap(client.get(f"/v1/tasks/{task}/export").content)[0]["/tmoc/step"]
+    assert len(task_steps) == 6 and [m["step"] for m in task_steps] == list(range(6))
 
 
 def test_observations_that_do_not_fit_get_409_and_change_nothing(client, robot):
@@ -157,13 +186,9 @@ def test_a_stack_and_push_robot_session_and_task_over_http(client):
         start = world.start_episode(np.random.default_rng(0))
         r = client.post("/v1/sessions", json={**learning, "observation": _observation(start)})
         assert r.status_code == 201, r.text
-        sid, step = r.json()["id"], r.json()["next"]
-        actions = []
-        while step is not None:
-            actions.append(step["action"])
-            outcome = world.execute(np.array(step["trajectory"]), step["action"])
-            body = client.post(f"/v1/sessions/{sid}/observations", json=_observation(outcome, step)).json()
-            step = body["next"]
+        sid = r.json()["id"]
+        replies = drive_episode(client, sid, world, r.json()["next"])
+        actions, body = [b["report"]["action"] for b in replies], replies[-1]
         assert len(actions) == 4 and actions[0] == "pickup(r,b1,init)"
         assert all(re.fullmatch(r"pickup\(r,b\d,(init|table|rail)\)|stack\(r,b\d,tower\)", a)
                    for a in actions), actions

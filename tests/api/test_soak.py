@@ -20,7 +20,7 @@ import pytest
 
 from coordinator.reality import SimulatedReality
 
-from .conftest import Server, stream_events
+from .conftest import Server, drive_episode, stream_events
 
 SOAK_S = float(os.environ.get("TMOC_SOAK_S", "100"))
 TASK = {"agent": "tmoc", "particles": 2, "episodes": 1, "max_steps": 2, "seed": 1}
@@ -54,15 +54,8 @@ def _session(c: httpx.Client, robot: SimulatedReality, seed: int) -> None:
     r = c.post("/v1/sessions", json={"particles": 2, "episodes": 1, "max_steps": 2, "seed": seed,
                                      "observation": {"configuration": start.configuration.to_dict()}})
     assert r.status_code == 201, r.text
-    sid, step = r.json()["id"], r.json()["next"]
-    while step is not None:
-        out = robot.execute(np.array(step["trajectory"]), step["action"])
-        r = c.post(f"/v1/sessions/{sid}/observations",
-                   json={"action": step["action"], "step_id": step["step_id"],
-                         "configuration": out.configuration.to_dict()})
-        assert r.status_code == 200, r.text
-        step = r.json()["next"]
-    assert c.delete(f"/v1/sessions/{sid}").status_code == 200
+    drive_episode(c, r.json()["id"], robot, r.json()["next"])
+    assert c.delete(f"/v1/sessions/{r.json()['id']}").status_code == 200
 
 
 def _burst(base: str, sid_hint: str) -> list[int]:

@@ -49,6 +49,40 @@ def test_a_tiny_run_writes_result_json_and_curve_png(ray_cluster, tmp_path, caps
     assert png[:8] == b"\x89PNG\r\n\x1a\n" and len(png) > 10_000
     assert json.loads(capsys.readouterr().out)["result"].endswith("result.json")
 
+    # Every real step in steps.jsonl; `tmoc export` writes them as MCAP, read back by mcap.
+    steps = [json.loads(line) for line in (tmp_path / "steps.jsonl").read_text().splitlines()]
+    assert [(s["episode"], s["step"]) for s in steps] == [(e, k) for e in range(2) for k in range(3)]
+    assert steps[3]["belief"] != steps[0]["belief"]
+    out = tmp_path / "run.mcap"
+    assert main(["export", str(tmp_path), "-o", str(out)]) == 0
+    assert json.loads(capsys.readouterr().out)["messages"] == {"/tmoc/step": 6, "/tmoc/trajectory": 6,
+                                                               "/tmoc/episode": 2}
+    from mcap.reader import make_reader
+
+    with open(out, "rb") as f:
+        reader = make_reader(f)
+        got = [(ch.topic, json.loads(m.data)) for _, ch, m in reader.iter_messages()]
+    step_msgs = [m for t, m in got if t == "/tmoc/step"]
+    assert [m["action"] for m in step_msgs] == [s["action"] for s in steps]
+    assert [m["measurements"] for m in step_msgs] == [s["measurements"] for s in steps]
+    trajs = [m for t, m in got if t == "/tmoc/trajectory"]
+    assert trajs[2]["points"] == steps[2]["trajectory"]["points"]
+    assert [m["utility"] for t, m in got if t == "/tmoc/episode"] == [e["utility"] for e in result["episodes"]]
+
+
+def test_export_refuses_what_is_not_a_run_in_one_line(tmp_path, capsys):
+    cases = [([str(tmp_path / "nowhere"), "-o", str(tmp_path / "x.mcap")], "run_dir"),
+             ([str(tmp_path), "-o", str(tmp_path / "x.mcap")], "run_dir"),            # no result.json
+             (["-o", str(tmp_path / "x.mcap")], "run_dir"),
+             (["--session", "s_1", "-o", str(tmp_path / "x.mcap")], "--session"),
+             (["--server", "http://127.0.0.1:9", "-o", str(tmp_path / "x.mcap")], "--server"),
+             ([str(tmp_path), "-o", str(tmp_path / "no" / "x.mcap")], "--out")]
+    for args, flag in cases:
+        assert main(["export", *args]) == 2, args
+        err = capsys.readouterr().err
+        assert flag in err and err.count("\n") == 1, err
+    assert not (tmp_path / "x.mcap").exists()
+
 
 def test_config_file_then_flags_and_print_config(tmp_path, capsys):
     """Every setting reachable from a file (issue 16 item 5): settings without a flag

@@ -123,6 +123,12 @@ class ChuteTask(TaskDomain):
     def is_goal(self, state: frozenset[str]) -> bool:
         return not any(a.startswith("queued(") for a in state)
 
+    def grounded_actions(self, n_blocks: int) -> tuple[str, ...]:
+        return tuple(f"sweep(p{i})" for i in range(1, int(n_blocks) + 1))
+
+    def atoms(self, n_blocks: int) -> tuple[str, ...]:
+        return tuple(f"{a}(p{i})" for i in range(1, int(n_blocks) + 1) for a in ("queued", "delivered"))
+
     # -- T's contexts ---------------------------------------------------------------------
     def contexts(self, n_blocks: int) -> tuple[Context, ...]:
         return tuple(("sweep", k) for k in range(1, int(n_blocks) + 1))
