@@ -24,6 +24,7 @@ import socket
 import subprocess
 import sys
 import time
+import tomllib
 import zipfile
 from pathlib import Path
 
@@ -180,7 +181,13 @@ def test_every_module_imports_from_the_installed_copy(venv):
         "print(json.dumps(bad))\n")
     proc = run_in(venv, [venv["python"], "-c", script, str(venv["site"]), json.dumps(modules)])
     assert proc.returncode == 0, proc.stderr[-3000:]
-    assert json.loads(proc.stdout.strip().splitlines()[-1]) == {}
+    bad = json.loads(proc.stdout.strip().splitlines()[-1])
+    # A module of an optional extra (the Gymnasium view) may refuse, naming the extra that
+    # installs what it needs; the image installs the core only.
+    extras = set(tomllib.loads((REPO / "pyproject.toml").read_text())["project"]["optional-dependencies"])
+    named = {m: re.search(r"^ImportError: .*pip install 'tmoc-service\[(\w+)\]'", why) for m, why in bad.items()}
+    assert {m: why for m, why in bad.items() if not (named[m] and named[m][1] in extras)} == {}
+    assert set(bad) <= {"coordinator.gym_env", "coordinator.gym_baselines"}
     assert len(modules) > 30 and "coordinator.commands.run" in modules
 
 
