@@ -147,9 +147,11 @@ class SessionManager:
 
     def _next(self, live: LiveSession) -> dict | None:
         """The pending step (planned if needed). Planning errors come from the observed
-        state (the robot's world), so they are a conflict, not a server error."""
+        state (the robot's world), so they are a conflict, not a server error. The particle
+        worlds are lent for it: a split belief's pose is chosen by simulating its candidates
+        (issue 37), and a restored session replays with them too, so it must match."""
         try:
-            return self._step_view(live, live.session.next_step())
+            return self._with_pool(live, lambda: self._step_view(live, live.session.next_step()))
         except ValueError as exc:
             raise SessionConflict(f"observation: cannot plan from the observed state: {exc}",
                                   "observation") from None

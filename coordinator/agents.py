@@ -12,8 +12,11 @@ class AgentSpec:
     sim_experience: feed the particles' simulated transitions into T
     planner:        "optimal" (max expected utility under T) or "satisficing" (random valid)
     grasp:          "belief" (Y at the real pose x of the belief), "prior_mean" (Y at the
-                    prior mean, never updated) or "random" (Y at a size drawn uniformly from
-                    the prior range each action: a random grasp within a reasonable range)
+                    prior mean, never updated), "random" (a grasp action, the domain's
+                    ``grasp_actions``, grounded at L drawn uniformly from the prior each time,
+                    every other action at the prior mean: a random grasp within a reasonable
+                    range) or "bandit" (L chosen per action kind by trial and error:
+                    ``coordinator.grounding_bandit``)
     """
 
     name: str
@@ -25,12 +28,15 @@ class AgentSpec:
 
 AGENTS: dict[str, AgentSpec] = {
     "tmoc": AgentSpec("tmoc", learn_belief=True, sim_experience=True, planner="optimal", grasp="belief"),
-    # TMP-RL: L stays at the prior mean; T from real experience only.
+    # TMP-RL: no model of L; its grounding learned by trial and error per action kind
+    # (issue 37: at the prior mean it could not learn where that grasp fails); T from real
+    # experience only.
     "tmp_rl": AgentSpec("tmp_rl", learn_belief=False, sim_experience=False, planner="optimal",
-                        grasp="prior_mean"),
+                        grasp="bandit"),
     # GP: learns L like TMOC but picks a random satisficing plan (no task-level learning).
     "gp": AgentSpec("gp", learn_belief=True, sim_experience=True, planner="satisficing", grasp="belief"),
-    # TOEP: no Y learning; random grasp pose in a reasonable range; T from real experience.
+    # TOEP: no Y learning; a random grasp in a reasonable range (grasps only, issue 37; the
+    # rest at the prior mean); T from real experience.
     "toep": AgentSpec("toep", learn_belief=False, sim_experience=False, planner="optimal", grasp="random"),
 }
 

@@ -40,6 +40,19 @@ def _ess(log_w: np.ndarray) -> float:
     return float(1.0 / np.dot(w, w))
 
 
+def unbiased_std_factor(ess: float) -> float:
+    """sqrt(ESS / (ESS - 1)): the weighted sample variance of particles with effective sample
+    size ESS underestimates the variance by the factor 1 - sum w^2 = (ESS - 1) / ESS in
+    expectation (the reliability-weights correction; Bessel's for equal weights). A kernel
+    that keeps the weighted variance through every resample (Liu and West's) would otherwise
+    lose that share each time: measured, a 16-particle posterior after 80 openings ended
+    with mean z^2 3.7. Applied where an update's weights are resampled (ESS below N/2), not
+    to a change of the particle count (`resample_to`), where no data came in. Capped at
+    ESS 1.5 (factor 1.73): below it the variance is 0 anyway."""
+    ess = max(float(ess), 1.5)
+    return math.sqrt(ess / (ess - 1.0))
+
+
 class GroupWeights:
     """Log-weights (G, N) per group of columns of L; the last group is ALL (every column)."""
 
@@ -82,12 +95,22 @@ class GroupWeights:
         dev = cols - w @ cols
         return np.sqrt(np.maximum(w @ (dev * dev), 0.0))
 
-    def resample(self, g: int, belief: Belief, rng: np.random.Generator, h: float, floor: float) -> None:
+    def mean(self, g: int, particles: np.ndarray) -> np.ndarray:
+        """The weighted mean of group g's columns under its own weights."""
+        w = np.exp(self.log_w[g] - np.max(self.log_w[g]))
+        return (w / w.sum()) @ particles[:, self.groups[g]]
+
+    def resample(self, g: int, belief: Belief, rng: np.random.Generator, h: float, floor: float,
+                 shrink: bool = False) -> None:
         """Systematic resampling of group g by its weights, then the kernel (h posterior
-        stds, at least `floor` of the prior's width) on its columns; the belief's weights
-        become the joint ones."""
+        stds, at least `floor` of the prior's width; with `shrink`, Liu and West's, which
+        keeps the mean and variance) on its columns; the belief's weights become the joint
+        ones."""
         cols = self.groups[g]
         std = self.std(g, belief.particles)
+        mean = self.mean(g, belief.particles) if shrink else None
+        if shrink:
+            std = std * unbiased_std_factor(self.ess(g))
         w = np.exp(self.log_w[g] - np.max(self.log_w[g]))
         ancestors = systematic_resample(w / w.sum(), rng)
         particles = belief.particles.copy()
@@ -100,7 +123,7 @@ class GroupWeights:
         self.log_w[g] = -math.log(belief.n)
         part = Belief(particles[:, cols], np.full(belief.n, -math.log(belief.n)),
                       belief.low[cols], belief.high[cols])
-        regularise(part, std, h, floor, rng)
+        regularise(part, std, h, floor, rng, mean=mean)
         particles[:, cols] = part.particles
         belief.particles = particles
         belief.log_weights = self.joint()

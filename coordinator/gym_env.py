@@ -20,9 +20,11 @@ domain's version: the ids move with the versioned registry), so that::
   domain's reward terms (deliveries). An action whose preconditions do not hold moves
   nothing and counts as failed.
 - **Observations**: ``configuration`` (the observed configuration, ``Configuration``'s
-  flat array) and ``state`` (one bit per atom of ``task.atoms``). The episode terminates at
-  the goal or at a dead end (no action applies: ``info["dead_end"]``) and is truncated
-  after ``max_steps`` actions.
+  flat array) and ``state`` (one bit per atom of ``task.atoms``), as the reality's noisy
+  sensors report them (issue 37: ``sensor_noise``, ``sensor_bias``, ``sensor_tails`` and
+  ``perception_sigma``, RunConfig's fields and defaults; 0, 0, "gaussian", 0: exact
+  readings). The episode terminates at the goal or at a dead end (no action applies:
+  ``info["dead_end"]``) and is truncated after ``max_steps`` actions.
 
 Needs the ``gym`` extra (``pip install 'tmoc-service[gym]'``).
 """
@@ -40,6 +42,8 @@ except ImportError as exc:  # pragma: no cover - exercised without the extra
 
 from sim_workers.configuration import Configuration
 
+from sim_workers.reality_gap import SensorNoise
+
 from .domains import load, names, spec
 from .reality import SimulatedReality
 from .transit import plan_pre_pose_transit
@@ -55,7 +59,9 @@ class TmocEnv(gym.Env):
 
     def __init__(self, domain: str = "container", *, n_blocks: int | None = None,
                  options: dict | None = None, truth=None, max_steps: int = DEFAULT_MAX_STEPS,
-                 engine: str | None = None) -> None:
+                 engine: str | None = None, sensor_noise: float = SensorNoise.scale,
+                 sensor_bias: float = SensorNoise.bias, sensor_tails: str = SensorNoise.tails,
+                 perception_sigma: float = SensorNoise.perception_m) -> None:
         opts = dict(options or {})
         if n_blocks is not None:
             opts["n_blocks"] = int(n_blocks)
@@ -63,6 +69,9 @@ class TmocEnv(gym.Env):
             opts["engine"] = engine
         if int(max_steps) < 1:
             raise ValueError(f"max_steps: {max_steps} must be at least 1")
+        # The reality's sensors (RunConfig's fields of the same names); ValueError if invalid.
+        self.noise = SensorNoise(scale=float(sensor_noise), bias=float(sensor_bias), tails=sensor_tails,
+                                 perception_m=float(perception_sigma))
         d = load(domain, **opts)
         self.domain_name, self.options = d.name, opts
         self.physics, self.task = d.physics, d.task
@@ -138,7 +147,8 @@ class TmocEnv(gym.Env):
         if self.reality is not None:
             self.reality.close()
         # The reality is built like a run's: its own engine option included.
-        self.reality = SimulatedReality(self.domain_name, self.options, self.physics.props_from_row(self.truth_row))
+        self.reality = SimulatedReality(self.domain_name, self.options, self.physics.props_from_row(self.truth_row),
+                                        noise=self.noise)
         self._obs = self.reality.start_episode(rng.spawn(1)[0])
         self._steps = 0
         return self._observation(), self._info()

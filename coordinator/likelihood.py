@@ -15,20 +15,20 @@ every hypothesis explains equally badly leaves the weights (almost) where they w
 instead of dragging the belief toward whichever hypothesis is least wrong. eps = 0 is the
 plain Gaussian (what the loop weighed before issue 24).
 
-An update may at most cut the effective sample size to ``ess_keep`` of what it was
-(``ess_temper``): a sharper one is tempered, its log-likelihood scaled by the largest
-alpha <= 1 that keeps that share, as adaptive tempering does in SMC samplers (Jasra,
-Stephens, Doucet and Tsagaris 2011). With 16 particles one sharp outcome otherwise leaves
-two or three hypotheses, and every property the outcome did not concern is then
-represented by their two or three values; an outcome that split the particles by chance
-(a stack that topples or not for reasons L does not hold) would decide the density
-posterior. The next observation of the same kind brings the rest of the information.
+With ``ess_keep`` > 0 (issue 24; off by default since issue 37) an update may at most
+cut the effective sample size to that share of what it was (``ess_temper``): a sharper one
+has its log-likelihood scaled by the largest alpha <= 1 that keeps it. That is a *power
+likelihood*, not SMC tempering: adaptive tempering (Jasra, Stephens, Doucet and Tsagaris
+2011) takes the rest of the likelihood in later steps with moves between, and this throws
+it away for good. It kept a failure at one grasp mode from ever resampling (the seed-91
+grasp loop of issue 37), so the default is now the whole likelihood, with the kernel and
+the resample-move (``coordinator.resample_move``) keeping the particle set alive.
 
 Each update's information is its Kullback-Leibler divergence from the weights before
 (``update_information``); the session counts updates above ``INFORMATIVE_NATS`` as
 informative. ``normalised_evidence`` is how well the belief as a whole predicted an
 observation (1: every particle exactly), what the lock-in monitor
-(``coordinator.rejuvenation``) watches.
+(``coordinator.rejuvenation``) averages with ``recovery="mh_move"`` (issue 37).
 """
 from __future__ import annotations
 

@@ -31,7 +31,18 @@ __all__ = ["CHI2_1_MEDIAN", "MIN_COUNT", "ModelError"]
 
 CHI2_1_MEDIAN = 0.454936423119572     # median of a chi-square with one degree of freedom
 MIN_COUNT = 10                        # innovations of a channel before sigma_model is estimated
-MAX_HISTORY = 400                     # the latest innovations kept per channel
+MAX_HISTORY = 400                     # the latest innovations kept per channel ("online")
+# "centered" (issue 37): the latest innovations kept per channel. The median of 40 chi-square
+# draws has a relative standard error of about 1.25 / (sqrt(40) x 0.455 x f) ~ 0.2, fine for a
+# sigma that enters the likelihood squared; a belief that moves forgets its old residuals
+# within about one episode's readings (the container: ~16 weighed readings an episode).
+CENTERED_HISTORY = 40
+# The innovation test's window and threshold (`bias_z`): the last 8 innovations of a
+# channel (the resample-move's window, coordinator.resample_move.MOVE_WINDOW), and 3: under a
+# calibrated belief their normalised sum is standard normal, so |z| > 3 has probability
+# 0.0027 per reading (about one needless, harmless move in 400 readings).
+BIAS_WINDOW = 8
+BIAS_Z = 3.0
 
 
 def model_variance(r2: np.ndarray, v: np.ndarray, sensor_var: float) -> float:
@@ -64,6 +75,11 @@ class ModelError:
 
     sensor_sigma: np.ndarray                       # (C,) the sensors' sigma per weighed channel
     history: list[list[list[float]]] = field(default_factory=list)   # per channel: [r^2, v] rows
+    # centered: rows are [r, v] with r signed, and sigma_model comes from the innovations'
+    # scatter about their median: a belief biased by b reads r ~ b + noise, which says L is
+    # off (the posterior's business), not that the worlds scatter (issue 37: a belief 7.5 mm
+    # off read as 7.6 mm of model error, slowing the recovery it needed).
+    centered: bool = False
     _model_sigma: np.ndarray | None = field(default=None, repr=False)   # cache of the estimate
 
     def __post_init__(self) -> None:
@@ -91,11 +107,13 @@ class ModelError:
         pred = np.asarray(predicted, dtype=np.float64).reshape(-1, obs.size)
         w = np.asarray(weights, dtype=np.float64)
         w = w / w.sum()
+        keep = CENTERED_HISTORY if self.centered else MAX_HISTORY
         for c in np.flatnonzero(~np.isnan(obs)):
             mean = float(w @ pred[:, c])
             var = float(w @ (pred[:, c] - mean) ** 2)
-            self.history[c].append([(obs[c] - mean) ** 2, var])
-            del self.history[c][:-MAX_HISTORY]
+            r = obs[c] - mean
+            self.history[c].append([float(r) if self.centered else r ** 2, var])
+            del self.history[c][:-keep]
         self._model_sigma = None
 
     def _estimate(self) -> np.ndarray:
@@ -103,17 +121,40 @@ class ModelError:
         for c, rows in enumerate(self.history):
             if rows:
                 a = np.asarray(rows, dtype=np.float64)
-                out[c] = np.sqrt(model_variance(a[:, 0], a[:, 1], float(self.sensor_sigma[c]) ** 2))
+                r2 = (a[:, 0] - np.median(a[:, 0])) ** 2 if self.centered else a[:, 0]
+                out[c] = np.sqrt(model_variance(r2, a[:, 1], float(self.sensor_sigma[c]) ** 2))
         return out
+
+    def bias_z(self, window: int = BIAS_WINDOW) -> float:
+        """The largest |sum r_t| / sqrt(sum (Var_w f + sigma^2)) over the channels' last
+        `window` innovations (centred mode only; 0 with fewer): the filter-consistency test
+        of the innovations' mean (Bar-Shalom, Li and Kirubarajan, 5.4). A calibrated belief's
+        innovations are independent with those variances, so this is standard normal; a
+        belief that has collapsed a reading or more away from the truth (every particle
+        alike, so no reading can move it) reads readings on one side, and it grows as
+        sqrt(window) x bias / sigma."""
+        if not self.centered:
+            return 0.0
+        sigma2 = self.sigma() ** 2
+        worst = 0.0
+        for c, rows in enumerate(self.history):
+            if len(rows) >= window:
+                a = np.asarray(rows[-window:], dtype=np.float64)
+                worst = max(worst, abs(float(a[:, 0].sum())) / float(np.sqrt(np.sum(a[:, 1] + sigma2[c]))))
+        return worst
 
     def to_dict(self) -> dict:
         """The innovations (the estimate is a function of them)."""
-        return {"sensor_sigma": self.sensor_sigma.tolist(), "history": self.history}
+        return {"sensor_sigma": self.sensor_sigma.tolist(), "history": self.history,
+                "centered": self.centered}
 
     @classmethod
-    def from_dict(cls, data: dict | None, sensor_sigma: np.ndarray) -> "ModelError":
-        """From `to_dict`; None (an old checkpoint) or another channel set: a fresh one."""
+    def from_dict(cls, data: dict | None, sensor_sigma: np.ndarray, centered: bool = False) -> "ModelError":
+        """From `to_dict`; None (an old checkpoint), another channel set or another kind of
+        innovation: a fresh one."""
         sensor = np.asarray(sensor_sigma, dtype=np.float64).reshape(-1)
-        if data is None or not np.array_equal(np.asarray(data["sensor_sigma"], dtype=np.float64), sensor):
-            return cls(sensor)
-        return cls(sensor, [[list(map(float, row)) for row in rows] for rows in data["history"]])
+        if (data is None or bool(data.get("centered", False)) != centered
+                or not np.array_equal(np.asarray(data["sensor_sigma"], dtype=np.float64), sensor)):
+            return cls(sensor, centered=centered)
+        return cls(sensor, [[list(map(float, row)) for row in rows] for rows in data["history"]],
+                   centered=centered)

@@ -77,21 +77,27 @@ class LockInMonitor:
         if not 0.0 < self.slow < self.fast <= 1.0:
             raise ValueError(f"lock-in: need 0 < slow < fast <= 1, got {self.slow}, {self.fast}")
 
-    def observe(self, key: str, explained: bool) -> float:
+    def observe(self, key: str, explained: bool, evidence: float | None = None) -> float:
         """Fold in one observation of `key`; the share of particles to redraw now: 0 when
         it was explained or w_fast / w_slow is still above REDRAW_BELOW, else 1 - that ratio.
+
+        With `evidence` (issue 37) the averaged quantity is augmented MCL's own: how well
+        the belief as a whole predicted the observation (``likelihood.normalised_evidence``,
+        in [0, 1]), and the ratio alone decides, explained or not: a belief whose every
+        particle sits 4 sigma from a run of readings scores ~0.003 each time, and fires.
 
         >>> m = LockInMonitor()
         >>> [round(m.observe("b1", ok), 2) for ok in (True, False, False, False, False, True, False)]
         [0.0, 0.0, 0.0, 0.6, 0.71, 0.0, 0.58]
         """
-        x = 1.0 if explained else 0.0
+        x = (1.0 if explained else 0.0) if evidence is None else min(max(float(evidence), 0.0), 1.0)
         previous = 1.0 if self.w_slow is None else self.w_slow
         self.w_slow = previous + self.slow * (x - previous)
         fast = self.w_fast.get(key, previous)
         fast += self.fast * (x - fast)
         self.w_fast[key] = fast
-        if explained or self.w_slow <= 0.0 or fast >= REDRAW_BELOW * self.w_slow:
+        gate = explained if evidence is None else False
+        if gate or self.w_slow <= 0.0 or fast >= REDRAW_BELOW * self.w_slow:
             return 0.0
         return 1.0 - fast / self.w_slow
 
@@ -120,14 +126,48 @@ def action_blocks(action: str, block_names: list[str]) -> list[int]:
 
 
 def regularise(belief: Belief, std: np.ndarray, h: float, jitter_floor: float,
-               rng: np.random.Generator) -> None:
-    """Move every particle by N(0, max(h std, jitter_floor (high - low))) per dimension,
-    folded back into the prior's bounds (`std`: the posterior's, before resampling)."""
+               rng: np.random.Generator, mean: np.ndarray | None = None) -> None:
+    """Move every particle by the kernel N(0, max(h std, jitter_floor (high - low))) per
+    dimension, folded back into the prior's bounds (`std`: the posterior's, before
+    resampling).
+
+    With `mean` (the posterior's, before resampling) the kernel is Liu and West's (2001):
+    each particle is first shrunk towards the mean, x -> a x + (1 - a) mean with
+    a = sqrt(1 - h^2), so that the moved set keeps the posterior's mean and variance
+    (a^2 var + h^2 var = var) instead of inflating the variance by (1 + h^2) at every
+    resample, which over many resamples widens the posterior for nothing:
+
+    >>> rng = np.random.default_rng(0)
+    >>> b = Belief(rng.normal(0.045, 0.002, (4000, 1)), np.full(4000, -np.log(4000)), [0.03], [0.06])
+    >>> s0 = float(b.std()[0]); m0 = b.mean()
+    >>> regularise(b, b.std(), 0.6, 0.0, rng, mean=m0)
+    >>> round(float(b.std()[0]) / s0, 2)
+    1.0
+    """
     sigma = np.maximum(h * np.asarray(std, dtype=np.float64), jitter_floor * (belief.high - belief.low))
     if not np.any(sigma > 0):
         return
-    moved = belief.particles + sigma * rng.standard_normal(belief.particles.shape)
+    x = belief.particles
+    if mean is not None:
+        a = math.sqrt(max(1.0 - h * h, 0.0))
+        x = a * x + (1.0 - a) * np.asarray(mean, dtype=np.float64).reshape(1, -1)
+    moved = x + sigma * rng.standard_normal(belief.particles.shape)
+    if mean is not None:
+        moved = _matched(moved, np.asarray(mean, dtype=np.float64), np.asarray(std, dtype=np.float64))
     belief.particles = reflect_into(moved, belief.low, belief.high)
+
+
+def _matched(x: np.ndarray, mean: np.ndarray, std: np.ndarray) -> np.ndarray:
+    """`x` moved and scaled per column so that its sample mean and std are `mean` and `std`
+    (a column without spread is left as it is). Resampling N equal-weight copies loses
+    about 1/N of the variance each time in expectation, which at 8 particles and a resample
+    per reading compounds into a posterior several times too narrow (measured: mean z^2
+    79 at N = 8 after 80 openings); the kernel keeps the moments only in expectation, this
+    keeps them exactly, as square-root ensemble filters do."""
+    m = x.mean(axis=0)
+    s = x.std(axis=0)
+    scale = np.where(s > 0, std / np.where(s > 0, s, 1.0), 1.0)
+    return mean + (x - m) * scale
 
 
 def inject_prior(belief: Belief, share: float, dims: np.ndarray, rng: np.random.Generator) -> int:

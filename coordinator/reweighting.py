@@ -27,9 +27,9 @@ import numpy as np
 
 from .belief import Belief, gaussian_log_likelihood, logsumexp
 from .block_weights import GroupWeights
-from .likelihood import (INFORMATIVE_NATS, OUTLIER_WIDTH_SIGMAS, ess_temper, perfect_log_likelihood,
-                         robust_log_likelihood, update_information)
-from .model_error import ModelError
+from .likelihood import (INFORMATIVE_NATS, OUTLIER_WIDTH_SIGMAS, ess_temper, normalised_evidence,
+                         perfect_log_likelihood, robust_log_likelihood, update_information)
+from .model_error import BIAS_Z, ModelError
 from .rejuvenation import EXPLAINED, LockInMonitor, action_blocks, inject_prior, regularise, rpf_bandwidth
 from .run_config import RunConfig
 
@@ -63,15 +63,26 @@ class Reweighting:
         self.block_names = list(block_names)
         self.n_properties = int(n_properties)
         self.per_block = bool(per_block)
-        self.model_error = ModelError(self.sensor_sigma)
+        self.model_error = ModelError(self.sensor_sigma, centered=config.model_error == "centered")
         self.lock_in = LockInMonitor(config.lock_in_slow, config.lock_in_fast)
         self.weights: GroupWeights | None = None     # made from the belief on first use
         self._explained = True
+        self._evidence = 1.0
+        self._biased = False
+        # The columns of L a resample-move is due on (set by `resample` when the lock-in
+        # monitor fires with recovery "mh_move"; the session runs the move: it holds the
+        # particle worlds and the recent real steps).
+        self.pending_move: np.ndarray | None = None
 
     @property
     def regularised(self) -> bool:
         """The filter of issue 24 (group weights, Musso kernel); else the one of before."""
-        return self.config.resample_kernel == "rpf"
+        return self.config.resample_kernel in ("rpf", "liu_west")
+
+    @property
+    def shrink(self) -> bool:
+        """Liu and West's shrinkage in the kernel (keeps the posterior's mean and variance)."""
+        return self.config.resample_kernel == "liu_west"
 
     # ----------------------------------------------------------------- groups of L
     def _block_groups(self) -> list[np.ndarray]:
@@ -87,9 +98,12 @@ class Reweighting:
         return self.weights
 
     def _group(self, action: str, groups: GroupWeights) -> int:
-        """The group an action's update goes to: the first block it names, else ALL."""
-        named = action_blocks(action, self.block_names)
-        return named[0] if named and groups.all > 0 else groups.all
+        """The group an action's update goes to: the block it names when it names one, else
+        ALL. An action naming several blocks (a stack of b3 onto b1) has an outcome that
+        depends on all of them jointly, so its likelihood goes to the whole rows (issue 37:
+        it went to the first block alone, and the block beneath never learned)."""
+        named = sorted(set(action_blocks(action, self.block_names)))
+        return named[0] if len(named) == 1 and groups.all > 0 else groups.all
 
     def action_view(self, belief: Belief, action: str) -> tuple[np.ndarray, np.ndarray]:
         """The log-weights and the columns of L an action concerns: with weights per block,
@@ -123,28 +137,46 @@ class Reweighting:
     # ----------------------------------------------------------------- likelihood
     def sigma(self) -> np.ndarray:
         """The likelihood's sigma per weighed channel (sensor, widened by the model error)."""
-        if self.config.model_error == "online":
+        if self.config.model_error in ("online", "centered"):
             return self.model_error.sigma()
         return self.sensor_sigma
+
+    def log_likelihood(self, symbolic_ll: np.ndarray, observed: np.ndarray,
+                       predicted: np.ndarray) -> tuple[np.ndarray, float]:
+        """Per-particle log-likelihood of an observation (the symbolic outcome's, plus the
+        weighed channels' at the current sigma), and an exact prediction's; changes no state.
+        The update (`weigh`) and the resample-move's re-simulated history both use it."""
+        ll = np.asarray(symbolic_ll, dtype=np.float64)
+        perfect = math.log1p(-self.config.error_rate)
+        if self.config.use_measurements and self.channels.size:
+            meas_ll, meas_perfect = self._measurement_ll(observed[self.channels], predicted[:, self.channels])
+            ll, perfect = ll + meas_ll, perfect + meas_perfect
+        return ll, perfect
 
     def weigh(self, belief: Belief, action: str, symbolic_ll: np.ndarray, observed: np.ndarray,
               predicted: np.ndarray) -> UpdateOutcome:
         """Bayes-update `belief` after `action` with the symbolic log-likelihood and the
         weighed channels of `observed` (M,) against each particle's `predicted` (N, M)."""
         before = belief.log_weights.copy()
-        ll = np.asarray(symbolic_ll, dtype=np.float64)
-        perfect = math.log1p(-self.config.error_rate)
+        view_before = self.action_view(belief, action)[0].copy()
+        ll, perfect = self.log_likelihood(symbolic_ll, observed, predicted)
+        self._evidence = normalised_evidence(view_before, ll, perfect)
         if self.config.use_measurements and self.channels.size:
             obs, pred = observed[self.channels], predicted[:, self.channels]
-            meas_ll, meas_perfect = self._measurement_ll(obs, pred)
-            ll, perfect = ll + meas_ll, perfect + meas_perfect
-            if self.config.model_error == "online" and self._all_matched(symbolic_ll):
+            if self.config.model_error in ("online", "centered") and self._all_matched(symbolic_ll):
                 # The innovation of the weights before, where every particle predicted the
                 # observed outcome: a reading of another regime (fingers closed on air where
                 # particles grasp) is a mixture, not model error (early in a run such
                 # readings made half the innovations and inflated the opening's sigma to
                 # 29 mm).
                 self.model_error.observe(obs, pred, belief.weights)
+                if self.model_error.bias_z() > BIAS_Z:
+                    self._biased = True
+                    self.model_error.history = [[] for _ in self.model_error.history]   # tested anew
+                else:
+                    self._biased = False
+            else:
+                self._biased = False
         self._explained = math.exp(min(float(np.max(ll)) - perfect, 0.0)) >= EXPLAINED
         alpha = self._update(belief, action, ll)
         kl = update_information(before, belief.log_weights)
@@ -200,9 +232,25 @@ class Reweighting:
         if not (c.lock_in and rejuvenate):
             return resampled, 0
         key, dims = self._lock_in_key(action, belief.dim)
-        share = self.lock_in.observe(key, self._explained)
+        move = c.recovery == "mh_move"
+        share = self.lock_in.observe(key, self._explained, self._evidence if move else None)
+        if move and self._biased:
+            share = max(share, 1.0)      # the innovations' mean test failed: move now
         if share <= 0.0 or dims.size == 0:
             return resampled, 0
+        if move:
+            # Uniform weights first (the move's target is the posterior the weights carry),
+            # then the session moves every row's `dims` by Metropolis-Hastings. Whole rows
+            # moving: every group's weights made uniform by resampling the joint ones.
+            if groups is None:
+                if not np.allclose(belief.log_weights, belief.log_weights[0]):
+                    belief.resample(rng, jitter=c.jitter, jitter_floor=c.jitter_floor)
+            elif dims.size == belief.dim and groups.all > 0:
+                self.resample_to(belief, belief.n, rng)
+            elif not np.allclose(groups.log_w[group], groups.log_w[group][0]):
+                self._resample_group(groups, group, belief, rng)
+            self.pending_move = dims
+            return True, 0
         if groups is None:
             if not np.allclose(belief.log_weights, belief.log_weights[0]):
                 belief.resample(rng, jitter=c.jitter, jitter_floor=c.jitter_floor)
@@ -213,7 +261,7 @@ class Reweighting:
 
     def _resample_group(self, groups: GroupWeights, g: int, belief: Belief, rng: np.random.Generator) -> None:
         h = rpf_bandwidth(belief.n, groups.groups[g].size)
-        groups.resample(g, belief, rng, h, self.config.jitter_floor)
+        groups.resample(g, belief, rng, h, self.config.jitter_floor, shrink=self.shrink)
 
     def resample_to(self, belief: Belief, n: int, rng: np.random.Generator) -> None:
         """Systematic resampling of whole rows to `n` particles (the adaptive budget's step);
@@ -222,9 +270,10 @@ class Reweighting:
         if not self.regularised:
             belief.resample_to(n, rng, jitter=c.jitter, jitter_floor=c.jitter_floor)
             return
-        std = belief.std()
+        std, mean = belief.std(), belief.mean()
         belief.resample_to(n, rng, jitter=0.0, jitter_floor=0.0)
-        regularise(belief, std, rpf_bandwidth(n, belief.dim), c.jitter_floor, rng)
+        regularise(belief, std, rpf_bandwidth(n, belief.dim), c.jitter_floor, rng,
+                   mean=mean if self.shrink else None)
         self.weights = GroupWeights.for_belief(belief, self._block_groups())
 
     def _lock_in_key(self, action: str, dim: int) -> tuple[str, np.ndarray]:
@@ -234,6 +283,8 @@ class Reweighting:
         if not self.per_block:
             return "all", np.arange(dim)
         named = action_blocks(action, self.block_names)
+        if self.config.recovery == "mh_move" and len(set(named)) != 1:
+            return "all", np.arange(dim)      # a move is posterior-preserving: whole rows may move
         if not named:
             return "none", np.zeros(0, dtype=np.int64)
         k, n_blocks = named[0], len(self.block_names)
@@ -248,7 +299,8 @@ class Reweighting:
         """Restore `to_dict`'s state (None: a checkpoint from before issue 24, a fresh state;
         the block weights are then made from the belief's, all in the whole-row group)."""
         data = data or {}
-        self.model_error = ModelError.from_dict(data.get("model_error"), self.sensor_sigma)
+        self.model_error = ModelError.from_dict(data.get("model_error"), self.sensor_sigma,
+                                                centered=self.config.model_error == "centered")
         self.lock_in = LockInMonitor.from_dict(data.get("lock_in"), slow=self.config.lock_in_slow,
                                                fast=self.config.lock_in_fast)
         weights = data.get("weights")

@@ -83,13 +83,19 @@ class RunConfig(BaseModel):
     use_measurements: bool = True
     match: Literal["success", "state"] = "success"
     # The real pose x from the particles' x_i: "mode" averages over the heaviest mode of the
-    # belief (bandwidth in metres of L); "mean" is the paper's weighted mean over all.
-    pose_rule: Literal["mode", "mean"] = "mode"
+    # belief (bandwidth in metres of L); "mean" is the paper's weighted mean over all;
+    # "success" (issue 37) takes, of the heaviest mode's pose, every other mode's and the
+    # mean's, the one the particle worlds predict succeeds for most of the belief's weight
+    # (the heaviest mode's on a tie; only a multimodal belief pays the extra simulations).
+    pose_rule: Literal["success", "mode", "mean"] = "success"
     mode_bandwidth: float = Field(0.003, gt=0, le=0.1)
     # Resampling jitter: std = max(jitter * posterior std, jitter_floor * prior width).
-    # A floor of 2 % (0.6 mm) lets a small particle set still drift onto the truth.
+    # The floor only keeps copies distinct when the posterior has collapsed onto one value:
+    # 0.1 % of the prior's width (0.03 mm of size), below any posterior std the channels can
+    # reach (docs/LOOP.md, "Constants"); calibration comes from the kernel and the likelihood.
+    # (Before issue 37: 2 %, which is what calibrated the posterior; stored settings keep it.)
     jitter: float = Field(0.1, ge=0, le=1)
-    jitter_floor: float = Field(0.02, ge=0, le=0.5)
+    jitter_floor: float = Field(0.001, ge=0, le=0.5)
     # The filter against model error and lock-in (issue 24; coordinator/reweighting.py). Each
     # weighed channel's likelihood is (1 - outlier_rate) N(y; f(L_i), sigma) + outlier_rate x a
     # floor 50 sensor sigmas wide, so a reading no particle explains moves no weight (0: the
@@ -102,17 +108,29 @@ class RunConfig(BaseModel):
     # rates). Stored settings from before these fields keep 0, "none", 0, "jitter", false and
     # false (stored_run_config).
     outlier_rate: float = Field(0.05, ge=0, lt=0.5)
-    model_error: Literal["online", "none"] = "online"
+    # "centered" (issue 37): the scatter of the innovations about their median, over a short
+    # memory, so that a belief's own bias is not read as model error; "online": the raw
+    # innovations (issue 24); "none": the sensor's sigma alone.
+    model_error: Literal["centered", "online", "none"] = "centered"
     # An update keeps at least this share of the effective sample size (a sharper one is
-    # tempered: its log-likelihood scaled down until it does); 0: untempered.
-    ess_keep: float = Field(0.5, ge=0, lt=1)
-    resample_kernel: Literal["rpf", "jitter"] = "rpf"
+    # scaled down: a power likelihood, not SMC tempering, which would carry the rest of the
+    # likelihood); 0 (issue 37's default): the whole likelihood, every update.
+    ess_keep: float = Field(0.0, ge=0, lt=1)
+    # "liu_west" (issue 37): the Musso bandwidth with Liu and West's shrinkage towards the
+    # mean, so resampling keeps the posterior's mean and variance; "rpf": the same kernel
+    # without shrinkage (variance x (1 + h^2) per resample); "jitter": the fixed jitter.
+    resample_kernel: Literal["liu_west", "rpf", "jitter"] = "liu_west"
     # With the sizes variation (one entry of L per block): weights per block, an action's
     # update going to the block it names (coordinator/block_weights.py); with "rpf" only
     # (the fixed jitter keeps one weight per particle: a schema-valid request is never
     # refused for the pair, issue 25's schemathesis run).
     block_weights: bool = True
     lock_in: bool = True
+    # What the lock-in monitor does when it fires: "mh_move" (issue 37) a resample-move, each
+    # row proposed from a mixture of the prior and a local random walk and accepted by
+    # Metropolis-Hastings against the likelihood of the last real steps re-simulated;
+    # "prior": rows redrawn from the prior at uniform weight (issue 24).
+    recovery: Literal["mh_move", "prior"] = "mh_move"
     # Disjoint ranges keep the long-term average the slower one for any pair the schema
     # allows (a cross-field check would refuse schema-valid requests).
     lock_in_slow: float = Field(0.05, gt=0, lt=0.2)
@@ -133,6 +151,18 @@ class RunConfig(BaseModel):
     # MuJoCo); the two differ for a run whose simulator is not its reality.
     engine: Literal["pybullet", "mujoco"] | None = None
     reality_engine: Literal["pybullet", "mujoco"] | None = None
+    # The simulated reality's sensors (issue 37; sim_workers.reality_gap.SensorNoise): what
+    # it reports is noisy, the world goes on from the truth. Simulated realities only (a
+    # robot session has no such fields). Stored settings from before them keep the exact
+    # readings: 0, 0, "gaussian", 0 (stored_run_config).
+    # The std of each weighed channel's noise, in multiples of its declared sigma (0: exact).
+    sensor_noise: float = Field(1.0, ge=0, le=10)
+    # A constant offset of each weighed channel's reading, in its declared sigmas.
+    sensor_bias: float = Field(0.0, ge=-5, le=5)
+    # The noise's shape: "student_t" is Student-t with 3 dof at the same std (heavy tails).
+    sensor_tails: Literal["gaussian", "student_t"] = "gaussian"
+    # The std (m, per axis) of the perceived planar positions of the movable objects.
+    perception_sigma: float = Field(0.002, ge=0, le=0.05)
     costs: Costs = Costs()
     shards: int | None = Field(None, ge=0, le=4096)
     # The hidden truth by the names of L (`tmoc domains`), e.g. {"size": 0.04, "density":
@@ -293,7 +323,17 @@ def seed_stream(seed: int, stream: int) -> np.random.Generator:
     return np.random.default_rng(np.random.SeedSequence(seed).spawn(stream + 1)[stream])
 
 
+# What a stored config without the sensor fields ran with: the exact readings (issue 37).
+PRE_SENSOR_NOISE = {"sensor_noise": 0.0, "sensor_bias": 0.0, "sensor_tails": "gaussian",
+                    "perception_sigma": 0.0}
+
 # What a stored config without the filter fields ran with (the same numbers, bit for bit).
+# The filter of issue 24 as it ran before issue 37 (a power likelihood, the Musso kernel
+# without shrinkage and a 2 % floor, raw innovations, prior redraws, the heaviest mode's
+# pose): `tmoc run --config` with these reproduces it, and the benchmarks' "before".
+PRE_ISSUE_37_FILTER = {"ess_keep": 0.5, "resample_kernel": "rpf", "jitter_floor": 0.02,
+                       "model_error": "online", "recovery": "prior", "pose_rule": "mode"}
+
 PRE_ISSUE_24_FILTER = {"outlier_rate": 0.0, "model_error": "none", "ess_keep": 0.0,
                        "resample_kernel": "jitter", "block_weights": False, "lock_in": False}
 
@@ -303,12 +343,18 @@ def stored_run_config(fields: dict) -> RunConfig:
     whole (every field), so one without `particle_budget` predates the adaptive budget:
     it keeps the fixed budget it ran with, whatever the default is now; likewise one without
     the filter fields of issue 24 keeps the filter it ran with, and one without
-    `sim_discount` T's undiscounted simulated counts."""
+    `sim_discount` T's undiscounted simulated counts, and one without the sensor fields of
+    issue 37 the simulated reality's exact readings (PRE_SENSOR_NOISE)."""
     fields = dict(fields)
     fields.setdefault("particle_budget", "fixed")
     fields.setdefault("sim_discount", "none")
+    # Before issue 37's filter: the lock-in monitor redrew from the prior.
+    fields.setdefault("recovery", "prior")
     # Before issue 24's filter: the plain Gaussian, sensor sigma, fixed jitter, no lock-in.
     for key, before in PRE_ISSUE_24_FILTER.items():
+        fields.setdefault(key, before)
+    # Before issue 37's sensors: the simulated reality read exactly.
+    for key, before in PRE_SENSOR_NOISE.items():
         fields.setdefault(key, before)
     return RunConfig(**fields)
 

@@ -9,6 +9,7 @@ from typing import Callable
 import numpy as np
 
 from sim_workers.engines import check_engine
+from sim_workers.reality_gap import SensorNoise
 
 from .fanout import ShardPool
 from .reality import ContextFailure, SimulatedReality
@@ -28,7 +29,31 @@ def reality_for(config: RunConfig, session: Session) -> SimulatedReality:
     failure = None if config.reality_fail is None else ContextFailure.parse(config.reality_fail)
     engine = {"engine": config.reality_engine} if config.reality_engine else {}
     return SimulatedReality(config.domain, {**domain_options(config), **engine}, truth, failure=failure,
-                            context_fn=session.task.context_of)
+                            context_fn=session.task.context_of, noise=sensor_noise(config))
+
+
+def sensor_noise(config: RunConfig) -> SensorNoise:
+    """The simulated reality's sensor and perception noise of a run (issue 37)."""
+    return SensorNoise(scale=config.sensor_noise, bias=config.sensor_bias, tails=config.sensor_tails,
+                       perception_m=config.perception_sigma)
+
+
+def reality_stream(seed: int, resume: dict | None = None) -> np.random.Generator:
+    """The simulated reality's generator (REALITY_STREAM), at a checkpoint's place when
+    resuming: its bit generator's state and the number of child streams it had spawned
+    (the reality spawns the execution jitter's and the sensors' streams every episode; a
+    spawned child is numbered by that count, which the state does not hold). A checkpoint
+    from before the count resumes at 0, as it did."""
+    rng = seed_stream(seed, REALITY_STREAM)
+    if resume:
+        spawned = int(resume.get("reality_rng_spawned", 0))
+        if spawned:
+            ss = rng.bit_generator.seed_seq
+            ss = np.random.SeedSequence(ss.entropy, spawn_key=ss.spawn_key, pool_size=ss.pool_size,
+                                        n_children_spawned=spawned)
+            rng = np.random.Generator(type(rng.bit_generator)(ss))
+        rng.bit_generator.state = resume["reality_rng"]
+    return rng
 
 
 def domain_options(config: RunConfig) -> dict:
@@ -117,9 +142,7 @@ def run(config: RunConfig, *, ray_address: str | None = None,
 
         session.frames = FrameRecorder(config.domain, domain_options(config), reality.truth, frames)
     # Reality's draws come from their own stream: the agent's decisions never shift them.
-    reality_rng = seed_stream(config.seed, REALITY_STREAM)
-    if resume:
-        reality_rng.bit_generator.state = resume["reality_rng"]
+    reality_rng = reality_stream(config.seed, resume)
     nodes: list[dict] = []
     ray_s0 = pool.timings["ray_s"] if pool is not None else 0.0
     try:
@@ -139,6 +162,8 @@ def run(config: RunConfig, *, ray_address: str | None = None,
             if on_episode is not None:
                 on_episode(record, session, {"session": session.to_checkpoint(),
                                              "reality_rng": reality_rng.bit_generator.state,
+                                             "reality_rng_spawned":
+                                                 reality_rng.bit_generator.seed_seq.n_children_spawned,
                                              "nodes": tally.report(nodes),
                                              "reruns": tally.reruns})
     finally:

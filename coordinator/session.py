@@ -29,8 +29,12 @@ from .belief import Belief, heaviest_class, mode_mask, symbolic_log_likelihood
 from .domains import load as load_domain, property_space, spec as domain_spec
 from .episode import EpisodeStats, utility_terms
 from .experience import ExperiencePool
+from .grounding_bandit import GroundingBandit
 from .particle_budget import next_count
 from .reality import Observation
+from .real_pose import choose_pose, pose_candidates
+from .rejuvenation import rpf_bandwidth
+from .resample_move import MOVE_WINDOW, RealStep, mh_move
 from .reweighting import Reweighting
 from .run_config import AGENT_STREAM, RunConfig, seed_stream, stored_run_config
 from .step_record import step_record
@@ -109,6 +113,12 @@ class Session:
         # The current episode's steps as records (coordinator.step_record: what an export
         # needs); not checkpointed: a run or session resumes at an episode's start.
         self.step_records: list[dict] = []
+        # The episode's latest real steps, for the resample-move (coordinator.resample_move);
+        # not checkpointed: emptied at each episode's start, so a resumed run matches.
+        self.recent: list[RealStep] = []
+        # TMP-RL's grounding by trial and error (its arm for the pending action, if any).
+        self.bandit = GroundingBandit(self.low, self.high) if self.agent.grasp == "bandit" else None
+        self._arm: tuple[str, int] | None = None
 
     def _point_belief(self, config: RunConfig) -> Belief:
         """Every particle at the true properties (L given, as in the paper's real-robot
@@ -171,6 +181,7 @@ class Session:
         self.pending = None
         self.stats = EpisodeStats()
         self.step_records = []
+        self.recent = []
         self._t0 = time.perf_counter()
 
     @property
@@ -211,12 +222,19 @@ class Session:
             view, cols = self._action_belief(action)
             if self.config.pose_rule == "mean":         # the paper: weighted mean of all x_i
                 return view.weighted_mean(poses, angular=(3,)), poses
+            if self.config.pose_rule == "success" and self.shard_pool is not None:
+                return self._most_successful_pose(config, action, view, cols, poses), poses
             keep = mode_mask(view.particles[:, cols], view.weights, self.config.mode_bandwidth,
                              scale=self._mode_scale()[cols])
             keep = self._one_pose_class(keep, view, config, action)
             sub = Belief(view.particles[keep], view.log_weights[keep], view.low, view.high)
             return sub.weighted_mean(poses[keep], angular=(3,)), poses
-        if mode == "random":
+        if mode == "bandit":
+            kind = action.partition("(")[0].strip()
+            arm = self.bandit.choose(kind, self.rng)
+            self._arm = (kind, arm)
+            return self.domain.action_pose(self._props(self.bandit.row(arm)), config, action), None
+        if mode == "random" and action.partition("(")[0].strip() in self.domain.grasp_actions:
             if len(self.L.names) == 1:
                 s = self.rng.uniform(float(self.L.low[0]), float(self.L.high[0]), self.n_blocks)
             else:   # every property of every block drawn from its prior
@@ -224,6 +242,30 @@ class Session:
                 s = self.rng.uniform(low, high)
             return self.domain.action_pose(self._props(s), config, action), None
         return self.domain.action_pose(self._props(self.believed_row()), config, action), None
+
+    def _most_successful_pose(self, config: Configuration, action: str, view: Belief,
+                              cols: np.ndarray, poses: np.ndarray) -> np.ndarray:
+        """The candidate pose (each mode's, and the mean's; ``coordinator.real_pose``) that
+        the particle worlds predict succeeds for most of the belief's weight."""
+        classes = self.domain.pose_classes(view.particles, config, action)
+        cands = pose_candidates(view.particles[:, cols], view.weights, poses, classes,
+                                self.config.mode_bandwidth, self._mode_scale()[cols])
+        if len(cands) == 1:
+            return cands[0]
+        expected = self.task.apply(self.state, action)
+        start = config.to_array()
+
+        def success(x: np.ndarray) -> np.ndarray:
+            traj = self.domain.action_trajectory(config, action, x)
+            t_pre = self.domain.transit_end_time(config, action, x)
+            t0 = time.perf_counter()
+            res = self.shard_pool.simulate(start, np.ascontiguousarray(view.particles), action, traj, t_pre)
+            self.stats.physics_s += time.perf_counter() - t0
+            self.particle_actions += view.n
+            self.particle_steps += int(res["steps"].sum())
+            return np.array([s == expected for s in res["states"]], dtype=np.float64)
+
+        return choose_pose(cands, success, view.weights)
 
     def _one_pose_class(self, keep: np.ndarray, view: Belief, config: Configuration,
                         action: str) -> np.ndarray:
@@ -307,6 +349,9 @@ class Session:
         report = {"action": step.action, "success": success, "state": sorted(observation.state)}
         if self.belief is not None and self.shard_pool is not None:
             report.update(self._reweight(before, step, observation))
+        if self._arm is not None:
+            self.bandit.observe(*self._arm, success)
+            self._arm = None
         self.experience.add_real(before.state, step.action, observation.state, step.expected)
         self.transition = self._transition_model()
         self._account(before.state, step, observation.state, success)
@@ -314,7 +359,7 @@ class Session:
             episode=self.episode, step=self.stats.actions - 1, action=step.action, pose=step.pose,
             trajectory=step.trajectory, before=before, after=observation, expected=step.expected,
             success=success, belief=self.posterior(), object_names=list(self.domain.object_names),
-            channels=[c["name"] for c in self.domain.measurement_channels()]))
+            channels=[c["name"] for c in self.domain.measurement_channels()], transit_end=step.transit_end))
         if self.frames is not None and not success:
             self.frames.failed_action(self.episode, self.stats.actions - 1, step.action, step.expected,
                                       observation.configuration, observation.state,
@@ -354,14 +399,22 @@ class Session:
         loglik = self._symbolic_loglik(step, observation.state, res["states"])
         if self.frames is not None:      # before the update: the weights that predicted
             self._prediction = self._predicted(step, observation.state, res, sizes)
+        # Simulated experience counts each world by how plausible it was before this real
+        # outcome was absorbed (the paper adds the worlds' outcomes, then weighs them; with the
+        # weights after, the real outcome was counted twice, issue 37).
+        prior_weights = self._action_belief(step.action)[0].weights
         update = self.reweighting.weigh(self.belief, step.action, loglik, observation.measurements,
                                         res["measurements"])
         if self.agent.sim_experience:      # weighted by how plausible each is for this action
             self.experience.add_simulated(before.state, step.action, res["states"], step.expected,
-                                          self._action_belief(step.action)[0].weights)
+                                          prior_weights)
+        self.recent.append(RealStep(start, step.action, step.trajectory, step.transit_end, step.expected,
+                                    observation.state, np.asarray(observation.measurements, dtype=np.float64)))
+        del self.recent[:-MOVE_WINDOW]
         # (A point belief at the truth, known_properties, is never redrawn nor resized.)
         resampled, injected = self.reweighting.resample(self.belief, self.rng, step.action,
                                                         rejuvenate=not self.config.known_properties)
+        injected += self._resample_move()
         self.stats.particle_counts.append(len(sizes))
         self.stats.count_update(update.informative, injected)
         report = {"ess": float(self.belief.ess()), "resampled": bool(resampled), "particles": len(sizes),
@@ -373,6 +426,29 @@ class Session:
                 report["resampled"] = True
             report["next_particles"] = n
         return report
+
+    def _resample_move(self) -> int:
+        """The Metropolis-Hastings move the lock-in monitor asked for, if any (rows moved)."""
+        dims = self.reweighting.pending_move
+        if dims is None:
+            return 0
+        self.reweighting.pending_move = None
+        b = self.belief
+        width = b.high - b.low
+        scale = np.maximum(rpf_bandwidth(b.n, dims.size) * b.std()[dims],
+                           max(self.config.jitter_floor, 1e-6) * width[dims])
+        t0 = time.perf_counter()
+        rows, moved = mh_move(b.particles, dims, b.low, b.high, scale, self.recent,
+                              self.shard_pool.simulate, self._step_loglik, self.rng)
+        self.stats.physics_s += time.perf_counter() - t0
+        self.particle_actions += 2 * b.n * len(self.recent)
+        b.particles = rows
+        return moved
+
+    def _step_loglik(self, step: RealStep, res: dict) -> np.ndarray:
+        """Each simulated row's log-likelihood of a recorded real step (no state changes)."""
+        sym = self._symbolic_loglik(step, step.observed, res["states"])
+        return self.reweighting.log_likelihood(sym, step.measurements, res["measurements"])[0]
 
     def _predicted(self, step: PendingStep, observed: frozenset[str], res: dict, rows: np.ndarray):
         """The particles' predictions of this action, for its picture (copies; reads only)."""
@@ -470,6 +546,7 @@ class Session:
             "config": self.config.model_dump(),
             "belief": self.belief.to_dict() if self.belief is not None else None,
             "reweighting": self.reweighting.to_dict(),
+            "bandit": self.bandit.to_dict() if self.bandit is not None else None,
             "experience": self.experience.to_dict(),
             "rng": self.rng.bit_generator.state,
             "episode": self.episode,
@@ -489,6 +566,8 @@ class Session:
         if data["belief"] is not None:
             session.belief = Belief.from_dict(data["belief"])
         session.reweighting.load(data.get("reweighting"), session.dims)     # absent before issue 24
+        if session.bandit is not None:                                        # absent before issue 37
+            session.bandit = GroundingBandit.from_dict(data.get("bandit"), session.low, session.high)
         session.experience = ExperiencePool.from_dict(data["experience"], session.task.context_of)
         session.transition = session._transition_model()
         session.rng.bit_generator.state = data["rng"]

@@ -26,9 +26,11 @@ def _floats(values) -> list:
 
 def step_record(*, episode: int, step: int, action: str, pose: np.ndarray, trajectory: np.ndarray,
                 before, after, expected: frozenset[str], success: bool, belief: dict,
-                object_names: list[str], channels: list[str]) -> dict:
+                object_names: list[str], channels: list[str], transit_end: float = 0.0) -> dict:
     """One step as a JSON-able dict (`before`/`after`: observations with configuration,
-    state and measurements; `belief`: ``Session.posterior()`` after the update)."""
+    state and measurements; `belief`: ``Session.posterior()`` after the update;
+    `transit_end`: where the particle worlds started the trajectory, the checked transit's
+    end or 0, what an offline re-filter needs to replay the step as the session did)."""
     return {
         "version": RECORD_VERSION,
         "time": time.time(),
@@ -38,6 +40,7 @@ def step_record(*, episode: int, step: int, action: str, pose: np.ndarray, traje
         "pose": _floats(pose),
         "trajectory": {"columns": list(columns_of(trajectory)),
                        "points": [_floats(row) for row in np.asarray(trajectory)]},
+        "transit_end": float(transit_end),
         "objects": list(object_names),
         "configuration_before": _floats(before.configuration.to_array()),
         "configuration_after": _floats(after.configuration.to_array()),

@@ -123,6 +123,12 @@ class PhysicsDomain(abc.ABC):
         return tuple(range(len(self.object_names)))
 
     @property
+    def grasp_actions(self) -> tuple[str, ...]:
+        """The action kinds that grasp an object (default: ``pickup``): the TOEP baseline
+        draws its random grounding for these only, as the paper's TOEP randomises grasps."""
+        return ("pickup",)
+
+    @property
     def execution_jitter(self) -> dict[str, float]:
         """The simulated reality's relative timing jitter per action kind: a real arm runs
         that kind U(1 +- jitter) times faster or slower than commanded (default: none)."""

@@ -6,11 +6,17 @@ arm run an action kind U(1 +- jitter) times faster or slower than planned (``exe
 probe's trials and the coordinator's simulated reality
 (``coordinator.reality.SimulatedReality``) both draw from here, so the gap a probe
 measures is the gap the loop meets.
+
+What the simulated reality *reports* is noisy too (``SensorNoise``, issue 37): each weighed
+measurement channel gets noise of its declared sigma (``noisy_readings``) and the perceived
+planar positions of the movable objects N(0, perception) (``perceived_planar``); the world
+itself goes on from the true state.
 """
 from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass
+from typing import ClassVar
 
 import numpy as np
 
@@ -20,6 +26,9 @@ from .domains import load
 PLACEMENT_JITTER_M = 0.002   # std of block placement, clipped at 2 std
 YAW_JITTER_RAD = 0.05
 FRICTION_JITTER = 0.10       # relative, uniform
+PERCEPTION_SIGMA_M = 0.002   # std of a perceived planar object position (per axis)
+SENSOR_TAILS = ("gaussian", "student_t")
+STUDENT_T_DOF = 3            # heavy tails: Student-t with 3 degrees of freedom (variance 3)
 
 
 @dataclass(frozen=True)
@@ -68,3 +77,88 @@ def executed(traj: np.ndarray, action: str, rng: np.random.Generator, jitter: fl
     out = np.array(traj, dtype=np.float64, copy=True)
     out[:, 0] = out[0, 0] + (out[:, 0] - out[0, 0]) / e
     return out
+
+
+@dataclass(frozen=True)
+class SensorNoise:
+    """What a simulated reality's sensors add to the simulator's exact readings (issue 37).
+
+    Each measurement channel with a declared sigma (``measurement_channels()``) reads
+    ``exact + sigma * (bias + scale * e)``, e of unit std: standard normal, or with
+    ``tails="student_t"`` a Student-t with 3 degrees of freedom divided by sqrt(3) (the same
+    std, heavier tails). The perceived planar positions (x, y) of the domain's movable
+    objects get N(0, perception_m^2) per axis. ``SensorNoise.NONE`` (scale 0, bias 0,
+    perception 0) reports the exact readings of before, drawing nothing.
+
+    >>> SensorNoise.NONE.exact, SensorNoise().exact
+    (True, False)
+    """
+
+    scale: float = 1.0              # the std, in multiples of each channel's declared sigma
+    bias: float = 0.0               # a constant offset, in declared sigmas
+    tails: str = "gaussian"         # or "student_t"
+    perception_m: float = PERCEPTION_SIGMA_M
+
+    NONE: ClassVar["SensorNoise"]
+
+    def __post_init__(self) -> None:
+        if not (np.isfinite(self.scale) and self.scale >= 0):
+            raise ValueError(f"scale: {self.scale} must be >= 0")
+        if not np.isfinite(self.bias):
+            raise ValueError(f"bias: {self.bias} must be finite")
+        if self.tails not in SENSOR_TAILS:
+            raise ValueError(f"tails: {self.tails!r} is not one of {', '.join(SENSOR_TAILS)}")
+        if not (np.isfinite(self.perception_m) and self.perception_m >= 0):
+            raise ValueError(f"perception_m: {self.perception_m} must be >= 0")
+
+    @property
+    def measures_exactly(self) -> bool:
+        """Whether the weighed channels read exactly (no draw)."""
+        return self.scale == 0 and self.bias == 0
+
+    @property
+    def perceives_exactly(self) -> bool:
+        """Whether object positions are perceived exactly (no draw)."""
+        return self.perception_m == 0
+
+    @property
+    def exact(self) -> bool:
+        return self.measures_exactly and self.perceives_exactly
+
+
+SensorNoise.NONE = SensorNoise(scale=0.0, bias=0.0, tails="gaussian", perception_m=0.0)
+
+
+def unit_noise(rng: np.random.Generator, n: int, tails: str = "gaussian") -> np.ndarray:
+    """`n` draws of zero mean and unit std: standard normal, or ("student_t") Student-t with
+    3 degrees of freedom over sqrt(3)."""
+    if tails == "gaussian":
+        return rng.standard_normal(n)
+    if tails == "student_t":
+        return rng.standard_t(STUDENT_T_DOF, n) / np.sqrt(STUDENT_T_DOF / (STUDENT_T_DOF - 2))
+    raise ValueError(f"tails: {tails!r} is not one of {', '.join(SENSOR_TAILS)}")
+
+
+def noisy_readings(rng: np.random.Generator, values, sigmas, noise: SensorNoise) -> np.ndarray:
+    """`values` as noisy sensors read them: each plus sigma * (bias + scale * e) with its own
+    `sigmas` entry (``SensorNoise``). A NaN (a channel that did not measure) stays NaN; one
+    draw per channel all the same, so the stream does not depend on which channels
+    measured. With ``noise.measures_exactly``: the values, without a draw."""
+    values = np.array(values, dtype=np.float64, copy=True).reshape(-1)
+    if noise.measures_exactly or values.size == 0:
+        return values
+    sigmas = np.broadcast_to(np.asarray(sigmas, dtype=np.float64), values.shape)
+    e = unit_noise(rng, values.size, noise.tails)
+    return values + sigmas * (noise.bias + noise.scale * e)
+
+
+def perceived_planar(rng: np.random.Generator, objects: np.ndarray, rows,
+                     perception_m: float = PERCEPTION_SIGMA_M) -> np.ndarray:
+    """`objects` as a camera perceives them: the planar position (x, y) of each of `rows`
+    plus N(0, perception_m^2) per axis (heights and orientations as they are). With 0: a
+    copy, without a draw."""
+    objects = np.array(objects, dtype=np.float64, copy=True)
+    rows = list(rows)
+    if perception_m > 0 and rows:
+        objects[rows, :2] += rng.normal(0.0, perception_m, (len(rows), 2))
+    return objects

@@ -63,6 +63,9 @@ def register(sub) -> None:
     p.add_argument("--reality-engine", default=None, metavar="pybullet|mujoco",
                    help="the simulated reality's engine (and T*'s probes); another than --engine's is "
                         "a simulator that is not reality")
+    p.add_argument("--set", action="append", default=None, metavar="KEY=VALUE", dest="run_fields",
+                   help="a RunConfig field for every run (repeatable), e.g. sensor_noise=2 or "
+                        "recovery=prior (tmoc run --print-config lists them)")
     p.add_argument("--ray-address", default=None, help="join a running Ray cluster")
     p.add_argument("--out", default="runs/experiments", help="output directory DIR")
     p.add_argument("--resume", action="store_true", help="reuse the finished runs in DIR/runs")
@@ -90,6 +93,21 @@ def _engine(value: str | None, flag: str) -> str | None:
         return check_engine(value, flag)
     except EngineError as exc:
         raise UsageError(str(exc)) from None
+
+
+def _run_fields(items: list[str] | None) -> dict:
+    """``--set KEY=VALUE`` items as RunConfig fields (values read as JSON, else text)."""
+    from ..run_config import RunConfig
+    from .run import parse_options
+
+    try:
+        fields = parse_options(items)
+    except UsageError as exc:
+        raise UsageError(str(exc).replace("--option", "--set", 1)) from None
+    unknown = sorted(set(fields) - set(RunConfig.model_fields))
+    if unknown:
+        raise UsageError(f"--set: {unknown[0]} is not a RunConfig field (tmoc run --print-config lists them)")
+    return fields
 
 
 def spec_from_args(args):
@@ -144,7 +162,8 @@ def spec_from_args(args):
                    truths=(ex.prior_truths(args.domain, runs, args.seed, ex.EXPERIMENTS.index(args.name))
                            if across else ()),
                    engine=_engine(args.engine, "--engine"),
-                   reality_engine=_engine(args.reality_engine, "--reality-engine"))
+                   reality_engine=_engine(args.reality_engine, "--reality-engine"),
+                   run_fields=_run_fields(getattr(args, "run_fields", None)))
     try:       # every run's config must validate before anything starts
         for k in range(len(spec.settings)):
             ex.run_config(spec, k, 0)

@@ -21,7 +21,9 @@ _FLAG_FIELDS = {"domain": "--domain", "agent": "--agent", "particles": "--partic
                 "max_steps": "--max-steps", "shards": "--shards", "truth": "--truth",
                 "options": "--option", "particle_budget": "--particle-budget",
                 "min_particles": "--min-particles", "reality_fail": "--reality-fail",
-                "engine": "--engine", "reality_engine": "--reality-engine"}
+                "engine": "--engine", "reality_engine": "--reality-engine",
+                "sensor_noise": "--sensor-noise", "sensor_bias": "--sensor-bias",
+                "sensor_tails": "--sensor-tails", "perception_sigma": "--perception-sigma"}
 
 
 def register(sub) -> None:
@@ -63,6 +65,18 @@ def register(sub) -> None:
     p.add_argument("--reality-engine", default=None, metavar="pybullet|mujoco",
                    help="the simulated reality's physics engine (default: as --engine's default); "
                         "another engine than --engine's is a simulator that is not reality")
+    p.add_argument("--sensor-noise", type=float, default=None, metavar="X",
+                   help=f"the simulated reality's sensor noise: each weighed channel's std in multiples "
+                        f"of its declared sigma; 0: exact readings (default {d.sensor_noise:g})")
+    p.add_argument("--sensor-bias", type=float, default=None, metavar="X",
+                   help=f"a constant offset of each weighed reading, in declared sigmas "
+                        f"(default {d.sensor_bias:g})")
+    p.add_argument("--sensor-tails", default=None, metavar="gaussian|student_t",
+                   help=f"the sensor noise's shape; student_t: Student-t with 3 dof at the same std "
+                        f"(default {d.sensor_tails})")
+    p.add_argument("--perception-sigma", type=float, default=None, metavar="M",
+                   help=f"std (m) of the simulated reality's perceived planar object positions; "
+                        f"0: exact (default {d.perception_sigma:g})")
     p.add_argument("--shards", type=int, default=None, help="shard actors (default: one per CPU)")
     p.add_argument("--ray-address", default=None, help="join a running Ray cluster")
     p.add_argument("--out", default="runs/latest", help="output directory")

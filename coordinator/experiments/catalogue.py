@@ -164,6 +164,9 @@ class Spec:
     truths: tuple[float, ...] = ()        # run r's hidden size (empty: true_size for every run)
     engine: str | None = None             # the particle worlds' engine (None: the default)
     reality_engine: str | None = None     # the simulated reality's (None: the default)
+    # RunConfig fields for every run (`--set KEY=VALUE`: e.g. the filter of before issue 37,
+    # or the reality's noise); a setting's own fields win over them.
+    run_fields: dict = field(default_factory=dict)
 
     def to_dict(self) -> dict:
         out = {"name": self.name, "runs": self.runs, "episodes": self.episodes,
@@ -180,6 +183,8 @@ class Spec:
         for key in ("engine", "reality_engine"):      # (summaries from before engines stay valid)
             if getattr(self, key) is not None:
                 out[key] = getattr(self, key)
+        if self.run_fields:
+            out["run_fields"] = dict(sorted(self.run_fields.items()))
         return out
 
     def run_truth(self, r: int) -> float:
@@ -241,6 +246,7 @@ def run_config(spec: Spec, k: int, r: int) -> RunConfig:
               "max_steps": spec.max_steps, "true_size": spec.run_truth(r),
               "seed": run_seed(spec.seed, EXPERIMENTS.index(spec.name), k, r),
               "particle_budget": spec.particle_budget, "min_particles": spec.min_particles}
+    fields.update(spec.run_fields)
     fields.update(s.overrides)
     for key in ("engine", "reality_engine"):
         if getattr(spec, key) is not None:

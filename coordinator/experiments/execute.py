@@ -13,16 +13,23 @@ leaves some idle, and a run's wall time is its whole serial cost.
 A long run also sends its checkpoint to the driver every ``checkpoint_s`` seconds, kept as
 ``<r>.partial.json``; ``--resume`` continues it from there with the same episodes as an
 uninterrupted run.
+
+The sweep's runs also keep their step records (``coordinator.step_record``, as ``tmoc run``
+writes them to steps.jsonl: ``analysis.run_tails`` counts failure loops from them, an
+offline judge can re-filter them) as ``<r>.steps.jsonl`` beside the run file; a checkpoint
+carries those of the episodes so far.
 """
 from __future__ import annotations
 
+import json
 import time
 from pathlib import Path
 
 from ..run_config import RunConfig
 from .catalogue import Spec, run_config, run_cost
+from .analysis import steps_path
 from .report import write_outputs
-from .runfiles import read_run, run_path, store_checkpoint, store_run
+from .runfiles import read_run, run_path, store_checkpoint, store_run, write_atomic
 from .true_T import cached_true_T, submit_probes, t_star_files, true_transition
 
 
@@ -31,13 +38,18 @@ def _run_remote():
 
     @ray.remote(num_cpus=1, max_retries=2)
     def run_task(config: dict, key: str, resume: dict | None, progress, checkpoint_s: float | None,
-                 log_to: tuple[str, str] | None = None):
+                 log_to: tuple[str, str] | None = None, keep_steps: bool = False):
         from ..agents import agent_spec
         from ..runner import run
         from ..shard_pools import ShardPools
 
         cfg = RunConfig(**config)
         last = [time.monotonic()]
+        # The run's step records; None where a resumed checkpoint has none (made before
+        # they were kept): never a partial list.
+        steps = None
+        if keep_steps:
+            steps = [] if resume is None else (list(resume["steps"]) if "steps" in resume else None)
         tracker = None
         if log_to is not None:              # (value, run name): one event folder per run
             from ..tracker import open_tracker
@@ -45,6 +57,9 @@ def _run_remote():
             tracker = open_tracker(*log_to)
 
         def on_episode(record, session, checkpoint):
+            if steps is not None:
+                steps.extend(session.step_records)
+                checkpoint["steps"] = steps
             send = (checkpoint_s is not None and record["episode"] + 1 < cfg.episodes
                     and time.monotonic() - last[0] >= checkpoint_s)
             if send:
@@ -60,7 +75,10 @@ def _run_remote():
             with ShardPools(n_shards=0, max_pools=1, own_ray_thread=False) as shard_pools:
                 pool = (shard_pools.acquire(cfg.scene)
                         if agent_spec(cfg.agent).learn_belief else None)
-                return run(cfg, pool=pool, on_episode=on_episode, resume=resume)
+                result = run(cfg, pool=pool, on_episode=on_episode, resume=resume)
+                if steps is not None:
+                    result["steps"] = steps
+                return result
         finally:
             if tracker is not None:
                 tracker.close()
@@ -142,7 +160,8 @@ def execute(spec: Spec, out: Path, *, resume: bool = False, progress: bool = Tru
         cfg = configs[(k, r)]
         resumed += (k, r) in partials
         log = None if log_to is None else (log_to, f"{spec.settings[k].key}/run{r}")
-        ref = task.remote(cfg.model_dump(), f"{k}/{r}", partials.get((k, r)), prog, checkpoint_s, log)
+        ref = task.remote(cfg.model_dump(), f"{k}/{r}", partials.get((k, r)), prog, checkpoint_s, log,
+                          spec.name == "sweep")
         refs[ref] = (k, r)
     ep_total = sum(spec.episodes - done_eps[kr] for kr in todo)
     run_bar = tqdm(total=len(todo), desc=f"{spec.name}: runs", unit="run", disable=not progress,
@@ -157,6 +176,12 @@ def execute(spec: Spec, out: Path, *, resume: bool = False, progress: bool = Tru
             for ref in ready:
                 k, r = refs[ref]
                 result = ray.get(ref)
+                steps = result.pop("steps", None)
+                path = steps_path(out, spec.settings[k], r)
+                if steps is not None:           # before the run file: a finished run has both
+                    write_atomic(path, "".join(json.dumps(s, separators=(",", ":")) + "\n" for s in steps))
+                elif path.exists():             # (a stale one of an earlier run)
+                    path.unlink()
                 store_run(out, spec, k, r, configs[(k, r)], result)
                 run_bar.update(1)
             if prog is not None:

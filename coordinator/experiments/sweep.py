@@ -15,24 +15,35 @@ regret over the last half of the episodes, the episode from which it stays withi
 property's posterior error in units of its std. Summary: the share of truths within
 ``NEAR_OPTIMUM`` by episode ``BY_EPISODE``, coverage (the share of true values inside the
 posterior's +- 2 std), the truths whose utility does not improve, and the worst truth.
+
+Tails (issue 37): with several seeds per truth every run is also judged on its own
+(``analysis.run_tails``, from its step records ``runs/<key>/<r>.steps.jsonl`` and its run
+file): regret per episode, the longest run of back-to-back failures of one action, whether
+it loops (that run >= ``LOOP_RUN``) or never improves, |z| per entry of L. The summary's
+``tails`` gives their distributions over runs (median, p90, worst), the shares that loop,
+never improve or are near the optimum by episode ``BY_EPISODE``, and calibration (coverage,
+mean z^2, median and p90 |z|); a run without step records (a sweep from before they were
+kept) has no failure figures (None). An exact-posterior reference per run (``references``
+of ``write_sweep``) adds sharpness: posterior std over the reference's.
 """
 from __future__ import annotations
 
 import json
-import math
 from pathlib import Path
 
 import numpy as np
 
 from sim_workers.properties import SIZES_VARIATION_SCALE
 
+from .analysis import (LOOP_RUN, TAIL_BY_EPISODE, TAIL_COVERAGE_Z, TAIL_NEAR_OPTIMUM, _z, read_steps,
+                       run_tails, steps_path, summarize_tails)
 from .catalogue import Setting, Spec
 from .runfiles import run_path, write_atomic
 from .true_T import Optimality, t_star_files
 
-NEAR_OPTIMUM = 30.0        # utility: "within 30 of the T*-optimum" (the issue's aim)
-BY_EPISODE = 4             # ... by this episode (1-based)
-COVERAGE_Z = 2.0           # a true value within +- 2 posterior std is covered
+NEAR_OPTIMUM = TAIL_NEAR_OPTIMUM   # utility: "within 30 of the T*-optimum" (the issue's aim)
+BY_EPISODE = TAIL_BY_EPISODE       # ... by this episode (1-based)
+COVERAGE_Z = TAIL_COVERAGE_Z       # a true value within +- 2 posterior std is covered
 SIZE_COUNTS = {"default": 7, "paper": 13}
 # Per-block truths (index into the sizes) and the density grid, per scale.
 VARIATION_AT = {"default": (2,), "paper": (1, 6, 11)}
@@ -128,11 +139,6 @@ def true_row(config: dict, posterior: dict) -> list[tuple[str, int | None, float
     return out
 
 
-def _z(truth: float, mean: float, std: float) -> float:
-    err = abs(mean - truth)
-    return 0.0 if err == 0 else (err / std if std > 0 else math.inf)
-
-
 def judge_run(data: dict, optimum: float | None) -> dict:
     """One run's figures against the optimum's expected utility under its T* (None: not
     judged against an optimum, e.g. per-block truths, whose T* is probed with equal blocks)."""
@@ -167,8 +173,26 @@ def judge_run(data: dict, optimum: float | None) -> dict:
     return out
 
 
-def sweep_rows(spec: Spec, out: Path, t_stars: dict) -> list[dict]:
-    """One judged row per (truth, run), in setting order."""
+def entry_key(name: str, block: int | None) -> str:
+    """An entry of L by name: the property's, or ``name[b]`` for block b's own."""
+    return name if block is None else f"{name}[{block}]"
+
+
+def tails_of(data: dict, optimum: float | None, steps: list[dict] | None,
+             reference: dict | None = None) -> dict:
+    """``analysis.run_tails`` of a run file's run (its step records `steps`, None if it kept
+    none), its entries of L keyed by ``entry_key``; `reference`: the exact posterior's
+    {"mean", "std"} per entry, keyed alike (optional)."""
+    entries = true_row(data["config"], data["episodes"][-1]["posterior"])
+    truth = {entry_key(p, b): t for p, b, t, _, _ in entries}
+    post = {entry_key(p, b): {"mean": m, "std": s} for p, b, _, m, s in entries}
+    return run_tails(steps, data["episodes"], optimum, truth, post, reference)
+
+
+def sweep_rows(spec: Spec, out: Path, t_stars: dict, references: dict | None = None) -> list[dict]:
+    """One judged row per (truth, run), in setting order; each with its ``tails``
+    (``tails_of``). `references`: {(setting key, run): the exact posterior per entry of L}
+    for the runs that have one (the exact-posterior judge's hook: sharpness)."""
     from ..domains import task_half
 
     files = t_star_files(spec)
@@ -189,6 +213,8 @@ def sweep_rows(spec: Spec, out: Path, t_stars: dict) -> list[dict]:
                    "true_size": data["config"]["true_size"], "truth_name": first[0], "truth_value": first[2],
                    "t_star": t_star["transition"]}
             row.update(judge_run(data, optimum))
+            row["tails"] = tails_of(data, optimum, read_steps(steps_path(out, s, r)),
+                                    (references or {}).get((s.key, r)))
             rows.append(row)
     return rows
 
@@ -202,6 +228,7 @@ def summarize_sweep(rows: list[dict]) -> dict:
     entries = sum(r["entries"] for r in rows)
     worst = max(judged, key=lambda r: r["regret_last"]) if judged else None
     worst_z = max(rows, key=lambda r: r["z_max"]) if rows else None
+    with_tails = [r for r in rows if r.get("tails") is not None]
     return {
         "truths": n, "judged": len(judged),
         f"near_optimum_by_episode_{BY_EPISODE}":
@@ -217,6 +244,9 @@ def summarize_sweep(rows: list[dict]) -> dict:
         {"case": worst_z["case"], "run": worst_z["run"], "z_max": worst_z["z_max"]},
         "fallbacks_per_episode": float(np.mean([np.mean(r["fallbacks"]) for r in rows])) if n else None,
         "aims": {"near_optimum_share": 0.9, "coverage": 0.9, "not_improving": 0},
+        # Distributions over runs (issue 37); None for rows judged before tails were.
+        "tails": summarize_tails([r["tails"] for r in with_tails],
+                                 [f"{r['case']} (run {r['run']})" for r in with_tails]) if with_tails else None,
     }
 
 
@@ -227,15 +257,20 @@ def _cell(v, digits: int = 0) -> str:
 
 def sweep_table(rows: list[dict], summary: dict) -> str:
     """Markdown: one line per truth and run, then the summary lines."""
+    # The longest failure run's column where rows were judged with tails (issue 37; the
+    # committed tables from before keep their columns).
+    loops = any("tails" in r for r in rows)
     lines = ["| domain | truth | run | utility per episode | optimum | regret (last half) | converged at |"
-             " failures/ep | fallbacks/ep | error/std (max) | covered |",
-             "|---|---|---|---|---|---|---|---|---|---|---|"]
+             " failures/ep |" + (" longest failure run |" if loops else "")
+             + " fallbacks/ep | error/std (max) | covered |",
+             "|---|---|---|---|---|---|---|---|---|---|---|" + ("---|" if loops else "")]
     for r in rows:
+        loop = f" {_loop_cell(r.get('tails') or {})} |" if loops else ""
         lines.append(
             f"| {r['domain']} | {r['case']} | {r['run']} | {', '.join(f'{x:.0f}' for x in r['utility'])} "
             f"| {_cell(r['optimum'])} | {_cell(r['regret_last'])} | {_cell(r['episodes_to_converge'])} "
-            f"| {np.mean(r['failures']):.1f} | {np.mean(r['fallbacks']):.1f} | {r['z_max']:.1f} "
-            f"| {r['covered']}/{r['entries']} |")
+            f"| {np.mean(r['failures']):.1f} |{loop} {np.mean(r['fallbacks']):.1f} "
+            f"| {r['z_max']:.1f} | {r['covered']}/{r['entries']} |")
     s = summary
     key = f"near_optimum_by_episode_{BY_EPISODE}"
     lines += ["", f"- within {NEAR_OPTIMUM:g} of the T*-optimum by episode {BY_EPISODE}: "
@@ -254,7 +289,47 @@ def sweep_table(rows: list[dict], summary: dict) -> str:
                      f"(utility {', '.join(f'{x:.0f}' for x in w['utility'])}, optimum {w['optimum']:.0f})")
     if s["worst_z"]:
         lines.append(f"- worst posterior: {s['worst_z']['case']}, {s['worst_z']['z_max']:.1f} std off")
+    if s.get("tails"):
+        lines += tails_lines(s["tails"])
     return "\n".join(lines) + "\n"
+
+
+def _loop_cell(tails: dict) -> str:
+    n = tails.get("longest_failure_run")
+    if n is None:
+        return "-"
+    return f"{n} ({tails['longest_failure_run_action']}, loops)" if tails.get("loops") else str(n)
+
+
+def _dist(d: dict | None, digits: int = 0) -> str:
+    return "-" if d is None else f"{d['median']:.{digits}f} / {d['p90']:.{digits}f} / {d['worst']:.{digits}f}"
+
+
+def tails_lines(t: dict) -> list[str]:
+    """The summary's tails as markdown list lines (over runs, not truths)."""
+    out = ["", f"Tails over {t['runs']} runs ({t['runs_with_steps']} with step records):",
+           f"- regret at the last episode, median / p90 / worst: {_dist(t['regret_last_episode'])}",
+           f"- longest run of back-to-back failures of one action, median / p90 / worst: "
+           f"{_dist(t['longest_failure_run'])}",
+           f"- runs that loop (>= {LOOP_RUN} such failures): {_pct(t['loop_share'])}"
+           + (f" ({', '.join(t['loops'])})" if t["loops"] else ""),
+           f"- runs that never improve on episode 1: {_pct(t['never_improves_share'])}"
+           + (f" ({', '.join(t['never_improves'])})" if t["never_improves"] else ""),
+           f"- runs within {NEAR_OPTIMUM:g} of the optimum by episode {BY_EPISODE}: "
+           f"{_pct(t[f'near_optimum_by_episode_{BY_EPISODE}_share'])}",
+           f"- calibration over {t['z_entries']} entries of L: coverage (|z| <= {COVERAGE_Z:g}) "
+           f"{_pct(t['coverage'])}, mean z^2 {_cell(t['mean_z2'], 2)}, median |z| {_cell(t['median_abs_z'], 2)}, "
+           f"p90 |z| {_cell(t['p90_abs_z'], 2)}"]
+    if t.get("worst_loop") and t["worst_loop"]["length"]:
+        w = t["worst_loop"]
+        out.append(f"- longest failure run: {w['run']}, {w['action']} failed {w['length']} times in a row "
+                   f"in episode {w['episode'] + 1}")
+    if t.get("sharpness"):
+        sh = t["sharpness"]
+        le = next(k for k in sh if k.startswith("share_le_"))
+        out.append(f"- sharpness (posterior std / exact posterior's) over {sh['n']} entries: median "
+                   f"{sh['median']:.2f}, p90 {sh['p90']:.2f}, within {le.removeprefix('share_le_')}x: {_pct(sh[le])}")
+    return out
 
 
 def _pct(v) -> str:
@@ -304,13 +379,14 @@ def _x(row: dict) -> float:
     return row["truth_value"]
 
 
-def write_sweep(spec: Spec, out: Path, t_stars: dict) -> dict:
-    """DIR/sweep.{json,csv,md,png} from the run files and the truths' T*."""
+def write_sweep(spec: Spec, out: Path, t_stars: dict, references: dict | None = None) -> dict:
+    """DIR/sweep.{json,csv,md,png} from the run files (and step records) and the truths'
+    T*; `references` as ``sweep_rows``'s (the exact-posterior judge's, optional)."""
     import csv
     import io
 
     out = Path(out)
-    rows = sweep_rows(spec, out, t_stars)
+    rows = sweep_rows(spec, out, t_stars, references)
     summary = summarize_sweep(rows)
     paths = {"csv": out / "sweep.csv", "json": out / "sweep.json", "png": out / "sweep.png",
              "md": out / "sweep.md"}
@@ -318,11 +394,14 @@ def write_sweep(spec: Spec, out: Path, t_stars: dict) -> dict:
     buf = io.StringIO()
     cols = ["domain", "case", "run", "seed", "true_size", "optimum", "regret_last", "near_optimum_by",
             "episodes_to_converge", "not_improving", "z_max", "covered", "entries"]
+    tail_cols = ["regret_last_episode", "longest_failure_run", "longest_failure_run_action", "loops",
+                 "never_improves"]
     w = csv.writer(buf)
-    w.writerow(cols + ["utility", "failures", "fallbacks"])
+    w.writerow(cols + ["utility", "failures", "fallbacks"] + tail_cols)
     for r in rows:
         w.writerow([r[c] for c in cols] + [" ".join(f"{x:g}" for x in r[k])
-                                           for k in ("utility", "failures", "fallbacks")])
+                                           for k in ("utility", "failures", "fallbacks")]
+                   + [r["tails"][c] for c in tail_cols])
     write_atomic(paths["csv"], buf.getvalue())
     write_atomic(paths["md"], sweep_table(rows, summary))
     plot_sweep(rows, paths["png"])

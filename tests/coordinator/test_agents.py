@@ -36,7 +36,7 @@ def test_every_agent_spec_is_consistent(name):
     spec = agent(name)
     assert isinstance(spec, AgentSpec) and spec.name == name
     assert spec.planner in ("optimal", "satisficing")
-    assert spec.grasp in ("belief", "prior_mean", "random")
+    assert spec.grasp in ("belief", "prior_mean", "random", "bandit")
     if not spec.learn_belief:      # no particles: nothing to grasp by, nothing to simulate
         assert spec.grasp != "belief" and not spec.sim_experience
 
@@ -92,3 +92,31 @@ def test_every_agent_runs_an_episode_with_the_record_and_properties_it_documents
         assert post["size_mean"] == pytest.approx(0.045)
         assert record["particle_actions"] == 0 and result["runtime"]["particle_actions"] == 0
     assert bool(sims) == spec.sim_experience, sims
+
+
+def test_tmp_rl_learns_its_grounding_by_trial_and_error():
+    """TMP-RL has no model of L (issue 37): a Thompson-sampling bandit per action kind over
+    rows of L spread across the prior. Where one row's grasp works and the others' fail, it
+    ends choosing that row; the counts round-trip through a checkpoint; every draw is the
+    generator's."""
+    import numpy as np
+
+    from coordinator.grounding_bandit import ARMS, GroundingBandit
+
+    def learn(seed: int) -> tuple[list[int], GroundingBandit]:
+        rng = np.random.default_rng(seed)
+        b = GroundingBandit([0.030], [0.060])
+        works = 1                                  # only arm 1 (34.3 mm) grasps a 34 mm block
+        chosen = []
+        for _ in range(60):
+            arm = b.choose("pickup", rng)
+            b.observe("pickup", arm, arm == works)
+            chosen.append(arm)
+        return chosen, b
+
+    chosen, b = learn(0)
+    assert b.row(1)[0] == pytest.approx(0.030 + 1.5 / ARMS * 0.030)
+    assert chosen[-20:].count(1) >= 18 and chosen[:10].count(1) < 10
+    assert learn(0)[0] == chosen and learn(1)[0] != chosen
+    again = GroundingBandit.from_dict(b.to_dict(), [0.030], [0.060])
+    assert again.counts == b.counts and GroundingBandit.from_dict(None, [0.03], [0.06]).counts == {}

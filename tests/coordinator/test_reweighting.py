@@ -59,7 +59,7 @@ def test_a_failure_no_particle_explains_leaves_the_belief_unchanged():
 
 
 def test_an_informative_outcome_still_moves_it():
-    s = session()
+    s = session(ess_keep=0.5)          # issue 24's power likelihood (stored settings keep it)
     sizes = s.particle_sizes()[:, 0]
     truth = float(sizes[3])
     mean0 = s.belief.mean()[0]
@@ -69,6 +69,11 @@ def test_an_informative_outcome_still_moves_it():
     assert 0.0 < out.alpha < 1.0          # tempered: one outcome may at most halve the ESS
     assert s.belief.ess() == pytest.approx(0.5 * N, rel=1e-3)
     assert abs(s.belief.mean()[0] - truth) < 0.5 * abs(mean0 - truth)
+    # Issue 37's default: the whole likelihood, every update.
+    s = session()
+    out = s.reweighting.weigh(s.belief, "pickup(r,b1,init)", symbolic(s, np.abs(sizes - truth) < 0.006),
+                              observed(truth), predictions(s, sizes))
+    assert out.alpha == 1.0 and s.belief.ess() < 0.5 * N
 
 
 def _lock_block(s: Session, k: int) -> None:
@@ -85,7 +90,7 @@ def _failed_pickup(s: Session, k: int):
 
 
 def test_rejuvenation_fires_when_every_particle_mispredicts_and_not_otherwise():
-    s = session(sizes_variation=True)
+    s = session(sizes_variation=True, recovery="prior")   # issue 24's redraws (issue 37: a move)
     _lock_block(s, 2)
     # Explained pickups (every particle predicted the success and the opening) draw nothing.
     state = json.dumps(s.rng.bit_generator.state)
@@ -108,7 +113,7 @@ def test_rejuvenation_fires_when_every_particle_mispredicts_and_not_otherwise():
 
 
 def test_a_shared_size_is_redrawn_whole_and_a_point_belief_never():
-    s = session()
+    s = session(recovery="prior")
     _lock_block(s, 0)
     injected = [_failed_pickup(s, 0)[1][1] for _ in range(3)]
     assert injected[:2] == [0, 0] and injected[2] > 0 and s.belief.particles[:, 0].max() > 0.033
@@ -137,7 +142,7 @@ def test_every_draw_is_the_sessions_seeded_generator():
 
 @pytest.mark.parametrize("per_block", [False, True])
 def test_a_checkpoint_carries_the_filters_state_and_resumes_identically(per_block):
-    s = session(sizes_variation=per_block)
+    s = session(sizes_variation=per_block, model_error="online")     # raw innovations: a sigma to keep
     _sequence(s)
     rng = np.random.default_rng(9)
     for _ in range(12):                      # innovations with scatter: a model error to keep
@@ -198,6 +203,8 @@ def test_the_filter_settings_are_validated():
         RunConfig(outlier_rate=0.7)
     with pytest.raises(ValidationError, match="resample_kernel"):
         RunConfig(resample_kernel="gauss")
+    with pytest.raises(ValidationError, match="recovery"):
+        RunConfig(recovery="redraw")
     # Weights per block go with the Musso kernel only; with the fixed jitter the pair is
     # accepted (a schema-valid request) and the weights stay one per particle.
     assert RunConfig(resample_kernel="jitter").block_weights
@@ -206,8 +213,12 @@ def test_the_filter_settings_are_validated():
                      (np.zeros(0, dtype=np.int64), np.zeros(0)), ["b1", "b2"], 1, per_block=True)
     assert rw._block_groups() == []
     d = RunConfig()
-    assert (d.outlier_rate, d.model_error, d.ess_keep, d.resample_kernel, d.lock_in) == \
-        (0.05, "online", 0.5, "rpf", True)
+    assert (d.outlier_rate, d.model_error, d.ess_keep, d.resample_kernel, d.lock_in, d.recovery) == \
+        (0.05, "centered", 0.0, "liu_west", True, "mh_move")
+    # A stored dump from before issue 37 (no `recovery`) keeps the prior redraws it ran with.
+    old = d.model_dump()
+    del old["recovery"]
+    assert stored_run_config(old).recovery == "prior"
 
 
 def _pickups_of_block_2(s: Session, n: int = 10) -> None:
@@ -295,8 +306,9 @@ def test_failures_l_cannot_explain_leave_the_posterior_calibrated():
 def test_model_error_counts_only_readings_of_the_regime_every_particle_predicted():
     """Readings where some particle predicted another outcome (a grasp that closed on air
     against particles that grasp) are not innovations of the model error; readings where
-    every particle predicted the outcome are, and their scatter widens the sigma."""
-    s = session()
+    every particle predicted the outcome are, and their scatter widens the sigma (issue 24's
+    raw innovations; the centred ones, which test their mean too, in test_filter_principled)."""
+    s = session(model_error="online")
     rng = np.random.default_rng(2)
     for _ in range(12):
         sizes = s.belief.particles[:, 0]

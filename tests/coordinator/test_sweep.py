@@ -148,7 +148,135 @@ def test_sweep_writes_its_files(ray_cluster, tmp_path):
         assert len(row["utility"]) == 1
         assert (row["optimum"] is None) == row["case"].endswith("per block")
         assert row["optimum"] is None or row["optimum"] <= 150
+        # each run keeps its step records (issue 37), and its tails are counted from them
+        steps = ex.analysis.read_steps(out / "runs" / row["key"] / "0.steps.jsonl")
+        assert steps and {s["episode"] for s in steps} == {0} and len(steps) <= 3
+        assert row["tails"]["longest_failure_run"] is not None
+    assert data["summary"]["tails"]["runs"] == data["summary"]["tails"]["runs_with_steps"] == n
     with open(out / "sweep.csv", newline="") as f:
         assert len(list(csv.DictReader(f))) == n
     assert (out / "sweep.md").read_text() == ex.sweep_table(data["rows"], data["summary"])
     assert (out / "sweep.png").read_bytes()[:4] == b"\x89PNG"
+
+
+# ----------------------------------------------------------------------------- tails (issue 37)
+def _steps(*episodes):
+    """Step records (as coordinator.step_record writes them: only what run_tails reads)
+    from per-episode lists of (action, success)."""
+    out = []
+    for e, steps in enumerate(episodes):
+        out += [{"episode": e, "step": i, "action": a, "success": ok} for i, (a, ok) in enumerate(steps)]
+    return out
+
+
+TRUTH = {"size": 0.045}
+POST = {"size": {"mean": 0.046, "std": 0.001}}
+
+
+def test_a_failure_loop_is_counted_and_loops():
+    from coordinator.experiments.analysis import LOOP_RUN, run_tails
+
+    pick = "pickup(r,b1,init)"
+    records = _steps([("pickup(r,b0,init)", True)] + [(pick, False)] * 24 + [(pick, True)],
+                     [(pick, False)] * 3)
+    t = run_tails(records, [-1800, -900], 110.0, TRUTH, POST)
+    assert t["longest_failure_run"] == 24 and t["loops"] and LOOP_RUN == 6
+    assert t["longest_failure_run_action"] == pick and t["longest_failure_run_episode"] == 0
+    assert t["regret"] == [1910.0, 1010.0] and t["regret_last_episode"] == 1010.0
+    assert t["z"] == {"size": pytest.approx(1.0)} and t["sharpness"] is None
+    # 5 in a row does not loop; a new episode starts a new run (3 + 3 is not 6)
+    five = run_tails(_steps([(pick, False)] * 5 + [(pick, True)]), [0], 110.0, TRUTH, POST)
+    assert five["longest_failure_run"] == 5 and not five["loops"]
+    split = run_tails(_steps([(pick, False)] * 3, [(pick, False)] * 3), [0, 0], 110.0, TRUTH, POST)
+    assert split["longest_failure_run"] == 3
+
+
+def test_alternating_actions_reset_the_count():
+    from coordinator.experiments.analysis import longest_failure_run, run_tails
+
+    a, b = "pickup(r,b1,init)", "pickup(r,b2,init)"
+    alternating = _steps([(a, False), (b, False)] * 10)
+    t = run_tails(alternating, [0, 0], 110.0, TRUTH, POST)
+    assert t["longest_failure_run"] == 1 and not t["loops"]
+    # a success of the same action, or any other record, ends a run
+    assert longest_failure_run(_steps([(a, False)] * 4 + [(a, True)] + [(a, False)] * 2))[0] == 4
+    assert longest_failure_run(_steps([(a, False)] * 4 + [(b, True)] + [(a, False)] * 5))[:2] == (5, a)
+    assert longest_failure_run(_steps([(a, True)] * 4)) == (0, None, None)
+    # no step records (a sweep from before they were kept): no failure figures, not a crash
+    old = run_tails(None, [0, 0], 110.0, TRUTH, POST)
+    assert old["longest_failure_run"] is None and old["loops"] is None
+
+
+def test_never_improving_and_improving_runs():
+    from coordinator.experiments.analysis import run_tails
+
+    never = run_tails([], [-900, -1000, -950, -900], 110.0, TRUTH, POST)
+    assert never["never_improves"] and not never["near_optimum_by"]
+    assert never["longest_failure_run"] == 0 and not never["loops"]
+    improves = run_tails([], [-900, -200, 100, 105], 110.0, TRUTH, POST)
+    assert not improves["never_improves"] and improves["near_optimum_by"]
+    assert improves["regret_last_episode"] == 5.0
+    # already within 30 of the optimum at episode 1: nothing to improve on
+    assert not run_tails([], [90, 85, 90, 90], 110.0, TRUTH, POST)["never_improves"]
+    # a single episode, or no optimum (per-block truths): undefined
+    assert run_tails([], [-900], 110.0, TRUTH, POST)["never_improves"] is None
+    unjudged = run_tails([], [-900, -1000], None, TRUTH, POST)
+    assert unjudged["never_improves"] is None and unjudged["regret"] is None
+    # the exact posterior's hook: sharpness = posterior std / reference std
+    sharp = run_tails([], [0], 110.0, TRUTH, POST, reference={"size": {"mean": 0.045, "std": 0.0005}})
+    assert sharp["sharpness"] == {"size": pytest.approx(2.0)}
+
+
+def test_tails_summary_distributions_over_runs():
+    from coordinator.experiments.analysis import distribution, run_tails, summarize_tails
+
+    d = distribution([10, 1, 2, 3, 4, 5, 6, 7, 8, 9, None])
+    assert d == {"n": 10, "median": 5.5, "p90": pytest.approx(9.1), "worst": 10.0}
+    assert distribution([None]) is None
+    pick = "stack(r,b3,b2)"
+    tails = [run_tails(_steps([(pick, False)] * n), [0, 110 - regret], 110.0, TRUTH,
+                       {"size": {"mean": 0.045 + z * 0.001, "std": 0.001}},
+                       reference={"size": {"mean": 0.045, "std": 0.001 / ratio}})
+             for n, regret, z, ratio in ((24, 500, 3.0, 1.0), (2, 0, 0.5, 2.0), (0, 10, 1.0, 1.2),
+                                         (7, 40, 2.5, 1.0))]
+    s = summarize_tails(tails, ["a", "b", "c", "d"])
+    assert s["runs"] == s["runs_with_steps"] == 4
+    assert s["regret_last_episode"] == {"n": 4, "median": 25.0, "p90": pytest.approx(362.0), "worst": 500.0}
+    assert s["longest_failure_run"]["median"] == 4.5 and s["longest_failure_run"]["worst"] == 24
+    assert s["loop_share"] == 0.5 and s["loops"] == ["a", "d"]
+    assert s["worst_loop"] == {"run": "a", "length": 24, "action": pick, "episode": 0}
+    assert s["never_improves_share"] == 0.25 and s["never_improves"] == ["a"]    # 0, then -390
+    assert s[f"near_optimum_by_episode_{BY_EPISODE}_share"] == 0.5
+    assert s["z_entries"] == 4 and s["coverage"] == 0.5
+    assert s["mean_z2"] == pytest.approx((9 + 0.25 + 1 + 6.25) / 4)
+    assert s["median_abs_z"] == pytest.approx(1.75)
+    assert s["sharpness"]["median"] == pytest.approx(1.1) and s["sharpness"]["share_le_1.5"] == 0.75
+    # the sweep's summary carries them for rows that have tails, and its table shows them
+    rows = [dict(ex.judge_run(_run([0, 110 - regret]), optimum=110.0), case=c, run=0, domain="container",
+                 tails=t) for c, t, regret in zip("abcd", tails, (500, 0, 10, 40))]
+    summary = ex.summarize_sweep(rows)
+    assert summary["tails"]["loops"] == ["a (run 0)", "d (run 0)"]
+    table = ex.sweep_table(rows, summary)
+    assert f"24 ({pick}, loops)" in table and "Tails over 4 runs" in table
+    assert ex.summarize_sweep([{k: v for k, v in r.items() if k != "tails"} for r in rows])["tails"] is None
+
+
+def test_tails_of_a_run_file_and_old_sweeps(tmp_path):
+    """sweep_rows reads each run's step records beside its run file; a run without them
+    (a sweep from before they were kept) gets None failure figures."""
+    from coordinator.experiments.analysis import read_steps, steps_path
+    from coordinator.experiments.sweep import tails_of
+
+    run = _run([-900, 100])
+    run["episodes"][-1]["posterior"]["properties"]["size"]["mean"] = 0.047
+    t = tails_of(run, 110.0, None)
+    assert t["z"] == {"size": pytest.approx(2.0)} and t["longest_failure_run"] is None
+    per_block = _run([110, 110], sizes_variation=True)
+    per_block["episodes"][-1]["posterior"].update(mean=[0.054] + [0.045] * 7, std=[0.001] * 8)
+    assert set(tails_of(per_block, None, [])["z"]) == {f"size[{b}]" for b in range(8)}
+    setting = ex.sweep_settings("container")[0]
+    path = steps_path(tmp_path, setting, 1)
+    assert path == tmp_path / "runs" / setting.key / "1.steps.jsonl" and read_steps(path) is None
+    path.parent.mkdir(parents=True)
+    path.write_text("".join(json.dumps(r) + "\n" for r in _steps([("pickup(r,b1,init)", False)] * 6)))
+    assert tails_of(run, 110.0, read_steps(path))["loops"]

@@ -1,0 +1,77 @@
+"""Step 2 of the loop when the belief is split: which real pose x to try (issue 37).
+
+Each particle i has its own pose x_i = Y(L_i). A unimodal belief takes the weighted mean of
+its mode's x_i (``belief.mode_mask``). A belief split into modes has no pose every particle
+agrees on, and the heaviest mode's pose can fail over and over: a failed grasp at mode A
+moves the weight to mode B, a failed grasp at B moves it back, and no pose between them
+(which would have succeeded for the truth) is ever tried. So the candidates are the pose
+of every mode (up to ``MAX_MODES``, by weight) and the weighted mean of all poses, each is
+run in every particle world, and the real pose is the candidate whose predicted success,
+sum_i w_i [x succeeds in world i], is highest: the decision that maximises the belief's
+expected success of the action (ties: the heaviest mode's, today's rule). A belief whose
+mode holds every particle has one candidate and pays no simulation.
+"""
+from __future__ import annotations
+
+from typing import Callable
+
+import numpy as np
+
+from .belief import Belief, heaviest_class, mode_mask
+
+__all__ = ["MAX_MODES", "pose_candidates", "choose_pose"]
+
+# Modes whose poses are candidates. Each costs N particle-actions per real action while the
+# belief is split; beyond three the remaining weight of a 16-32 particle belief is a few
+# particles, whose pose the mean candidate already leans towards.
+MAX_MODES = 3
+
+# Candidate poses closer than this (every component, m or rad) are one candidate.
+SAME_POSE = 1e-6
+
+
+def _weighted_pose(particles: np.ndarray, log_w: np.ndarray, poses: np.ndarray, keep: np.ndarray) -> np.ndarray:
+    sub = Belief(particles[keep], log_w[keep], np.min(particles, axis=0) - 1.0, np.max(particles, axis=0) + 1.0)
+    return sub.weighted_mean(poses[keep], angular=(3,))
+
+
+def pose_candidates(particles: np.ndarray, weights: np.ndarray, poses: np.ndarray, classes: np.ndarray,
+                    bandwidth: float, scale: np.ndarray) -> list[np.ndarray]:
+    """The poses worth trying: each mode's (heaviest first, one pose class each), then the
+    weighted mean of every particle's pose; near-duplicates dropped. One entry when the
+    heaviest mode holds every particle."""
+    p = np.asarray(particles, dtype=np.float64).reshape(len(particles), -1)
+    w = np.asarray(weights, dtype=np.float64)
+    log_w = np.log(np.maximum(w, 1e-300))
+    left = w > 0
+    out: list[np.ndarray] = []
+    for _ in range(MAX_MODES):
+        if not left.any():
+            break
+        keep = np.zeros(len(p), dtype=bool)
+        idx = np.flatnonzero(left)
+        keep[idx] = mode_mask(p[idx], w[idx], bandwidth, scale=scale)
+        keep = heaviest_class(classes, w, keep)
+        out.append(_weighted_pose(p, log_w, poses, keep))
+        left &= ~keep
+        if len(out) == 1 and not left.any():
+            return out                       # one mode holds every particle
+    out.append(_weighted_pose(p, log_w, poses, w > 0))
+    unique: list[np.ndarray] = []
+    for x in out:
+        if all(np.max(np.abs(x - u)) > SAME_POSE for u in unique):
+            unique.append(x)
+    return unique
+
+
+def choose_pose(candidates: list[np.ndarray], success: Callable[[np.ndarray], np.ndarray],
+                weights: np.ndarray) -> np.ndarray:
+    """The candidate with the highest predicted success sum_i w_i success(x)_i (the first
+    of equals: the heaviest mode's). `success(x)` is (N,) in [0, 1], from the worlds."""
+    if len(candidates) == 1:
+        return candidates[0]
+    w = np.asarray(weights, dtype=np.float64)
+    w = w / w.sum()
+    scores = np.array([float(w @ success(x)) for x in candidates])
+    best = int(np.flatnonzero(scores >= scores.max() - 1e-9)[0])
+    return candidates[best]
