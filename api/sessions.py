@@ -147,11 +147,12 @@ class SessionManager:
 
     def _next(self, live: LiveSession) -> dict | None:
         """The pending step (planned if needed). Planning errors come from the observed
-        state (the robot's world), so they are a conflict, not a server error. The particle
-        worlds are lent for it: a split belief's pose is chosen by simulating its candidates
-        (issue 37), and a restored session replays with them too, so it must match."""
+        state (the robot's world), so they are a conflict, not a server error. Planned
+        without particle worlds: a robot session's pose of a split belief is its heaviest
+        mode's (the run's candidate simulation, issue 37, would lease a shard pool on every
+        plan); a restored session replays its plans the same way (`_load`)."""
         try:
-            return self._with_pool(live, lambda: self._step_view(live, live.session.next_step()))
+            return self._step_view(live, live.session.next_step())
         except ValueError as exc:
             raise SessionConflict(f"observation: cannot plan from the observed state: {exc}",
                                   "observation") from None
@@ -192,12 +193,16 @@ class SessionManager:
             steps = self.store.session_steps(session_id, session.episode)
 
             def replay() -> None:
+                def plan() -> None:             # as `_next` planned it: without the worlds
+                    with session.using_shard_pool(None):
+                        session.next_step()
+
                 session.start_episode(from_canonical(row["episode_start"]))
-                session.next_step()
+                plan()
                 for obs in steps:
                     session.observe(from_canonical(obs))
                     live.step += 1
-                    session.next_step()
+                    plan()
 
             self._with_pool(live, replay)
         self._live[session_id] = live
