@@ -1,6 +1,6 @@
 """The trip model of a block world (part of the block-world toolkit, ``planner.blocks``):
 T and the costs validated, and what each action of a plan is worth under them
-(DESIGN.md section 3). Blocks are picked up, stacked onto a load and the load is pushed
+(the paper's container domain). Blocks are picked up, stacked onto a load and the load is pushed
 to the goal in trips; the container and stack-and-push are both such worlds.
 
 What a planner optimises is computed exactly, in Python, by simulating a plan on the

@@ -5,7 +5,7 @@ A domain's encoding (``planner/asp/<domain>.lp``) works on counts: how many bloc
 how many are loaded, which classes come in which order. This module writes the
 integer-scaled weights of the trip model (``planner.blocks.model``) as facts, and runs
 clingo in multi-shot incremental mode with ``#minimize`` over them, one trip more per
-horizon (DESIGN.md sections 3 and 7). The domain names the blocks afterwards and
+horizon. The domain names the blocks afterwards and
 recomputes the expected utility exactly in Python.
 
 Everything returned is plain Python data; a fresh ``clingo.Control`` is made per call

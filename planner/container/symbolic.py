@@ -1,4 +1,4 @@
-"""Symbolic simulator of the container domain (DESIGN.md section 3, Table I of the paper).
+"""Symbolic simulator of the container domain (Table I of the paper).
 
 States are ``frozenset[str]`` of ground atoms in ASP text without spaces and actions are
 ASP terms in text, exactly as every other part of the service exchanges them. This module

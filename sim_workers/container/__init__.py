@@ -1,4 +1,4 @@
-"""The container domain (the paper's simulation experiment, DESIGN.md section 3)."""
+"""The container domain (the paper's simulation experiment)."""
 from __future__ import annotations
 
 import dataclasses
