@@ -47,7 +47,7 @@ os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")
 
 from coordinator import experiments as ex  # noqa: E402
 from coordinator.commands.experiment import spec_from_args  # noqa: E402
-from coordinator.experiments.analysis import SHARP_RATIO  # noqa: E402
+from coordinator.experiments.tails import SHARP_RATIO  # noqa: E402
 from coordinator.experiments.sweep import BY_EPISODE  # noqa: E402
 from coordinator.fanout import init_ray  # noqa: E402
 

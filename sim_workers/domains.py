@@ -204,7 +204,7 @@ def load(name: str, engine: str | None = None, **options) -> "PhysicsDomain":
     """The physics half of domain `name`, built with `options` (e.g. n_blocks=8); its
     worlds in `engine` (``sim_workers.engines``; None: the default engine)."""
     from .base import PhysicsDomain, missing_members
-    from .engines import check_engine
+    from .engines.registry import check_engine
 
     s = spec(name)
     factory = _REGISTRY.get(s.name) or import_string(s.physics)

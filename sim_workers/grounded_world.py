@@ -74,7 +74,7 @@ class GroundedWorld:
 
     def __new__(cls, domain: Domain, *, leave_out: bool = False, engine: str | None = None):
         if cls is GroundedWorld:
-            from .engines import world_class
+            from .engines.registry import world_class
             cls = world_class(engine or domain.engine)
         return super().__new__(cls)
 

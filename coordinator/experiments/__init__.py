@@ -15,6 +15,9 @@ One module per concept:
 - ``runfiles``: run files, checkpoints and ``--resume``;
 - ``execute``: the runs on Ray, with progress and checkpoints;
 - ``analysis``: rows, convergence, the summary and its tables;
+- ``tails``: a run's tails (failure loops, regret, |z|, sharpness) and their distributions;
+- ``spec``: ``Setting`` and ``Spec``, what every other module passes around;
+- ``reference``: the exact posterior of a recorded run, the judge;
 - ``report``: the CSV, JSON, markdown and PNG files;
 - ``sweep``: the learning-quality sweep's truths across the prior, judged per truth
   against its own T* (its own files: DIR/sweep.*).

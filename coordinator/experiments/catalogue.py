@@ -12,7 +12,7 @@ Seeds. Run r of setting k of experiment x gets
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Callable
 
 import numpy as np
@@ -21,6 +21,8 @@ from sim_workers.domains import DEFAULT_DOMAIN
 
 from ..agents import AGENTS as AGENT_SPECS
 from ..run_config import RunConfig
+from .spec import (DEFAULT_PROBE_TRIALS, EXPERIMENT_TRUE_SIZE, WEIGHTS_DOMAIN, WEIGHTS_SIGMAS,  # noqa: F401
+                   WEIGHTS_TRUE_DENSITY, WEIGHTS_TRUE_SIZE, Setting, Spec)     # (re-exported)
 
 ROBOT_EPISODES = tuple(range(0, 37, 4))            # Table II of the paper: episodes 0, 4, ..., 36
 AGENTS = tuple(AGENT_SPECS)    # the agent registry's names, in its order
@@ -29,28 +31,6 @@ PARTICLE_FRACTIONS = (0.25, 0.5, 0.75, 1.0)      # paper: N = 50, 100, 150, 200
 # Paper scale (a cluster): 15 runs of 5000 episodes, N = 200.
 PAPER_SCALE = {"runs": 15, "episodes": 5000, "particles": 200}
 
-# `weights` (issue 14): heavy blocks whose size is the prior mean, so that what TMP-RL
-# gets wrong is the mass alone (its grip is 69 % of what the blocks need; `tmoc probe
-# --believed-density`), on the one domain with density in L.
-WEIGHTS_DOMAIN = "stack_and_push"
-WEIGHTS_TRUE_SIZE = 0.045
-WEIGHTS_TRUE_DENSITY = 2400.0
-WEIGHTS_SIGMAS = (0.1, 3.5)       # N: an external wrist F/T sensor, a UR5e's built-in one
-DEFAULT_PROBE_TRIALS = 20
-# The experiments' hidden block size. Not the prior mean (45 mm, `tmoc run`'s default):
-# there a grasp computed from the prior mean already works (pickup tolerates about
-# +-10 mm, `tmoc probe`), so TMP-RL's fixed grounding would be right by construction and
-# the experiments would not test grounding at all. At 34 mm the prior-mean grasp fails
-# every time (probe: 0/10; 36 mm: 10/10) while 34 mm stays inside the prior (30-60 mm).
-EXPERIMENT_TRUE_SIZE = 0.034
-
-
-@dataclass(frozen=True)
-class Setting:
-    key: str                  # unique over experiments: the run directory DIR/runs/<key>
-    label: str                # legend and CSV "setting"
-    overrides: dict           # RunConfig fields
-    t_star: dict | None = None   # T* probe parameters of this setting's own truth (the sweep)
 
 
 @dataclass(frozen=True)
@@ -140,56 +120,6 @@ def _sweep_settings(particles: int, domain: str, scale: str) -> list[Setting]:
     return sweep_settings(domain, scale)
 EXPERIMENTS = tuple(REGISTRY)
 DEFAULT_SCALE = {name: e.default_scale for name, e in REGISTRY.items()}
-
-
-@dataclass
-class Spec:
-    """One experiment call, every scale field resolved."""
-
-    name: str
-    runs: int
-    episodes: int
-    particles: int
-    seed: int = 0
-    max_steps: int = 60
-    true_size: float = EXPERIMENT_TRUE_SIZE
-    milestones: tuple[int, ...] = ()
-    probe_trials: int = DEFAULT_PROBE_TRIALS
-    probe_seed: int = 0
-    scale: str = "default"
-    settings: list[Setting] = field(default_factory=list)
-    domain: str = DEFAULT_DOMAIN
-    particle_budget: str = "fixed"
-    min_particles: int = 8
-    truths: tuple[float, ...] = ()        # run r's hidden size (empty: true_size for every run)
-    engine: str | None = None             # the particle worlds' engine (None: the default)
-    reality_engine: str | None = None     # the simulated reality's (None: the default)
-    # RunConfig fields for every run (`--set KEY=VALUE`: e.g. the filter of before issue 37,
-    # or the reality's noise); a setting's own fields win over them.
-    run_fields: dict = field(default_factory=dict)
-
-    def to_dict(self) -> dict:
-        out = {"name": self.name, "runs": self.runs, "episodes": self.episodes,
-               "particles": self.particles, "seed": self.seed, "max_steps": self.max_steps,
-               "true_size": self.true_size, "milestones": list(self.milestones),
-               "probe_trials": self.probe_trials, "probe_seed": self.probe_seed,
-               "scale": self.scale}
-        if self.domain != DEFAULT_DOMAIN:  # the committed summaries from before domains stay valid
-            out["domain"] = self.domain
-        if self.particle_budget != "fixed":
-            out["particle_budget"], out["min_particles"] = self.particle_budget, self.min_particles
-        if self.truths:
-            out["truths"] = list(self.truths)
-        for key in ("engine", "reality_engine"):      # (summaries from before engines stay valid)
-            if getattr(self, key) is not None:
-                out[key] = getattr(self, key)
-        if self.run_fields:
-            out["run_fields"] = dict(sorted(self.run_fields.items()))
-        return out
-
-    def run_truth(self, r: int) -> float:
-        """Run r's hidden block size."""
-        return self.truths[r] if self.truths else self.true_size
 
 
 def prior_truths(domain: str, runs: int, seed: int, experiment: int) -> tuple[float, ...]:

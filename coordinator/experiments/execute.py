@@ -15,7 +15,7 @@ A long run also sends its checkpoint to the driver every ``checkpoint_s`` second
 uninterrupted run.
 
 The sweep's runs also keep their step records (``coordinator.step_record``, as ``tmoc run``
-writes them to steps.jsonl: ``analysis.run_tails`` counts failure loops from them, an
+writes them to steps.jsonl: ``tails.run_tails`` counts failure loops from them, an
 offline judge can re-filter them) as ``<r>.steps.jsonl`` beside the run file; a checkpoint
 carries those of the episodes so far.
 """

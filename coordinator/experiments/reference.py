@@ -233,7 +233,7 @@ def _reference(simulate: SimulateFn, model: dict, steps: list[dict], n_episodes:
 
 def entries(ref: dict, episode: int | None = None) -> dict[str, dict]:
     """{entry of L: {"mean", "std"}} of a reference (after `episode`; None: the last step),
-    the shape ``analysis.run_tails`` takes as its `reference`."""
+    the shape ``tails.run_tails`` takes as its `reference`."""
     post = ref if episode is None else ref["episodes"][episode]
     return {name: {"mean": post["mean"][j], "std": post["std"][j]} for j, name in enumerate(ref["names"])}
 

@@ -13,7 +13,7 @@ import os
 from pathlib import Path
 
 from ..run_config import RunConfig
-from .catalogue import Setting, Spec
+from .spec import Setting, Spec
 
 
 def jsonable(obj):

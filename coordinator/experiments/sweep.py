@@ -17,7 +17,7 @@ property's posterior error in units of its std. Summary: the share of truths wit
 posterior's +- 2 std), the truths whose utility does not improve, and the worst truth.
 
 Tails (issue 37): with several seeds per truth every run is also judged on its own
-(``analysis.run_tails``, from its step records ``runs/<key>/<r>.steps.jsonl`` and its run
+(``tails.run_tails``, from its step records ``runs/<key>/<r>.steps.jsonl`` and its run
 file): regret per episode, the longest run of back-to-back failures of one action, whether
 it loops (that run >= ``LOOP_RUN``) or never improves, |z| per entry of L. The summary's
 ``tails`` gives their distributions over runs (median, p90, worst), the shares that loop,
@@ -33,11 +33,10 @@ from pathlib import Path
 
 import numpy as np
 
-from sim_workers.properties import SIZES_VARIATION_SCALE
 
-from .analysis import (LOOP_RUN, TAIL_BY_EPISODE, TAIL_COVERAGE_Z, TAIL_NEAR_OPTIMUM, _z, read_steps,
-                       run_tails, steps_path, summarize_tails)
-from .catalogue import Setting, Spec
+from .tails import (LOOP_RUN, TAIL_BY_EPISODE, TAIL_COVERAGE_Z, TAIL_NEAR_OPTIMUM, _default_truths,  # noqa: F401
+                    _z, read_steps, run_tails, steps_path, summarize_tails, true_row)
+from .spec import Setting, Spec
 from .runfiles import run_path, write_atomic
 from .true_T import Optimality, t_star_files
 
@@ -104,41 +103,7 @@ def _property_settings(domain: str, name: str, values: list[float]) -> list[Sett
                     {"options": {f"true_{name}": v}}) for v in values]
 
 
-def _default_truths(config: dict) -> dict[str, float]:
-    """L's default truth by name for the run's domain and options."""
-    from sim_workers.domains import load
-
-    L = load(config["domain"], n_blocks=config["n_blocks"], **(config.get("options") or {})).L
-    return dict(zip(L.names, (float(t) for t in L.truth)))
-
-
 # ----------------------------------------------------------------------------- analysis
-def true_row(config: dict, posterior: dict) -> list[tuple[str, int | None, float, float, float]]:
-    """(property, block or None, truth, posterior mean, posterior std) for every entry of
-    L that the posterior reports (per block with ``sizes_variation``)."""
-    props = posterior.get("properties") or {}
-    names = list(props) or ["size"]
-    mean, std = posterior.get("mean"), posterior.get("std")
-    n = config["n_blocks"]
-    truths = {"size": float(config["true_size"])}
-    if any(n not in ("size", "density") for n in names):
-        truths = {**_default_truths(config), **truths, **(config.get("truth") or {})}
-    if "density" in names:
-        truths["density"] = float(config["truth"].get("density", config["options"].get("density", 700.0)))
-    per_block = bool(config["sizes_variation"]) and mean is not None and len(mean) == n * len(names)
-    out = []
-    for j, name in enumerate(names):
-        if per_block:
-            for b in range(n):
-                t = truths[name] * (SIZES_VARIATION_SCALE if name == "size" and b == 0 else 1.0)
-                out.append((name, b, t, float(mean[j * n + b]), float(std[j * n + b])))
-        else:
-            m = props[name]["mean"] if name in props else posterior["size_mean"]
-            s = props[name]["std"] if name in props else posterior["size_std"]
-            out.append((name, None, truths[name], float(m), float(s)))
-    return out
-
-
 def judge_run(data: dict, optimum: float | None) -> dict:
     """One run's figures against the optimum's expected utility under its T* (None: not
     judged against an optimum, e.g. per-block truths, whose T* is probed with equal blocks)."""
@@ -180,7 +145,7 @@ def entry_key(name: str, block: int | None) -> str:
 
 def tails_of(data: dict, optimum: float | None, steps: list[dict] | None,
              reference: dict | None = None) -> dict:
-    """``analysis.run_tails`` of a run file's run (its step records `steps`, None if it kept
+    """``tails.run_tails`` of a run file's run (its step records `steps`, None if it kept
     none), its entries of L keyed by ``entry_key``; `reference`: the exact posterior's
     {"mean", "std"} per entry, keyed alike (optional)."""
     entries = true_row(data["config"], data["episodes"][-1]["posterior"])

@@ -13,7 +13,7 @@ from typing import Callable, Sequence
 
 from sim_workers.domains import DEFAULT_DOMAIN
 
-from .catalogue import WEIGHTS_TRUE_DENSITY, Setting, Spec
+from .spec import WEIGHTS_TRUE_DENSITY, Setting, Spec
 from .runfiles import jsonable, write_atomic
 
 

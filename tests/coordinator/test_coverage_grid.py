@@ -6,7 +6,8 @@ from __future__ import annotations
 
 import pytest
 
-from coordinator.experiments.sweep import COVERAGE_Z, true_row
+from coordinator.experiments.sweep import COVERAGE_Z
+from coordinator.experiments.tails import true_row
 from coordinator.run_config import RunConfig
 from coordinator.runner import run
 

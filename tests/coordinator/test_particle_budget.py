@@ -60,37 +60,46 @@ def test_resample_to_a_new_count_is_seeded_and_keeps_the_ancestors():
     assert abs(twins[0].mean()[0] - 0.04) < 0.003
 
 
-def _run(budget: str) -> dict:
-    cfg = RunConfig(particles=24, episodes=3, seed=0, true_size=0.034, particle_budget=budget, min_particles=6)
+def _run(budget: str, episodes: int = 3) -> dict:
+    cfg = RunConfig(particles=24, episodes=episodes, seed=0, true_size=0.034, particle_budget=budget,
+                    min_particles=6)
     return run(cfg, pool=ShardPool(cfg.domain, {"n_blocks": 8}, n_shards=0))
 
 
 @pytest.fixture(scope="module")
 def runs():
-    return {"fixed": _run("fixed"), "kld": _run("kld")}
+    return {"kld": _run("kld")}
 
 
 @pytest.mark.slow
-@pytest.mark.timeout(400)          # the two runs (fixture): 135 s measured on 2 loaded cores
+@pytest.mark.timeout(600)          # the run (fixture): 140 s measured alone on 2 cores
 def test_the_count_falls_as_the_belief_converges(runs):
-    kld, fixed = runs["kld"]["episodes"], runs["fixed"]["episodes"]
-    assert all(set(e["particles_per_action"]) == {24} for e in fixed)
+    kld = runs["kld"]["episodes"]
     assert kld[0]["particles_per_action"][0] == 24                     # the prior is wide
-    assert set(kld[-1]["particles_per_action"]) == {6}                # converged: the floor
-    # 774 of 1440 (54 %) with issue 24's filter (its tempering keeps the posterior wider
-    # for longer: one action of episode 2 went back to 24 particles); 48 % before it.
-    assert sum(e["particle_actions"] for e in kld) < 0.6 * sum(e["particle_actions"] for e in fixed)
-    # ... and learns as much: the same final utility, the posterior within 1 mm.
-    assert kld[-1]["utility"] == fixed[-1]["utility"]
-    assert abs(kld[-1]["posterior"]["size_mean"] - fixed[-1]["posterior"]["size_mean"]) < 0.001
+    # Converged to within two 3 mm bins: the truth, 34 mm, is 1 mm from the 33 mm bin edge
+    # and the calibrated posterior (issue 37: noisy readings, Liu-West kernel) keeps a
+    # +-2 std of about 1 mm, so it straddles the edge and KLD asks for kld_count(2) = 17;
+    # the old filter's narrower posterior sat in one bin and fell to the floor, 6.
+    assert max(kld[-1]["particles_per_action"]) <= kld_count(2, 0.2) < 24
+    # Against a fixed 24 on the same actions: measured with the noisy reality, 1180
+    # particle-actions of replay for 62 actions, 79 % of 24 x 62 (a fixed-budget run of
+    # the same seed takes other actions; issue 24's noise-free filter: 54 %).
+    actions = sum(len(e["particles_per_action"]) for e in kld)
+    assert sum(e["particle_actions"] for e in kld) < 0.85 * 24 * actions
+    # ... and it learns: the optimum (two trips of 4, 110) at the end, the posterior
+    # within 1 mm of the truth.
+    assert kld[-1]["utility"] == 110.0
+    assert abs(kld[-1]["posterior"]["size_mean"] - 0.034) < 0.001
 
 
 @pytest.mark.slow
 @pytest.mark.timeout(400)
 def test_an_adaptive_run_depends_on_its_seed_alone(runs):
-    again = _run("kld")
+    # Its first episode again, as a one-episode run: the result depends on the seed, not on
+    # how many episodes were asked for.
+    again = _run("kld", episodes=1)
     strip = lambda eps: [{k: v for k, v in e.items() if not k.endswith("_s")} for e in eps]  # noqa: E731
-    assert strip(again["episodes"]) == strip(runs["kld"]["episodes"])
+    assert strip(again["episodes"]) == strip(runs["kld"]["episodes"][:1])
 
 
 def test_stored_settings_from_before_the_budget_keep_the_fixed_budget():

@@ -174,7 +174,7 @@ POST = {"size": {"mean": 0.046, "std": 0.001}}
 
 
 def test_a_failure_loop_is_counted_and_loops():
-    from coordinator.experiments.analysis import LOOP_RUN, run_tails
+    from coordinator.experiments.tails import LOOP_RUN, run_tails
 
     pick = "pickup(r,b1,init)"
     records = _steps([("pickup(r,b0,init)", True)] + [(pick, False)] * 24 + [(pick, True)],
@@ -192,7 +192,7 @@ def test_a_failure_loop_is_counted_and_loops():
 
 
 def test_alternating_actions_reset_the_count():
-    from coordinator.experiments.analysis import longest_failure_run, run_tails
+    from coordinator.experiments.tails import longest_failure_run, run_tails
 
     a, b = "pickup(r,b1,init)", "pickup(r,b2,init)"
     alternating = _steps([(a, False), (b, False)] * 10)
@@ -208,7 +208,7 @@ def test_alternating_actions_reset_the_count():
 
 
 def test_never_improving_and_improving_runs():
-    from coordinator.experiments.analysis import run_tails
+    from coordinator.experiments.tails import run_tails
 
     never = run_tails([], [-900, -1000, -950, -900], 110.0, TRUTH, POST)
     assert never["never_improves"] and not never["near_optimum_by"]
@@ -228,7 +228,7 @@ def test_never_improving_and_improving_runs():
 
 
 def test_tails_summary_distributions_over_runs():
-    from coordinator.experiments.analysis import distribution, run_tails, summarize_tails
+    from coordinator.experiments.tails import distribution, run_tails, summarize_tails
 
     d = distribution([10, 1, 2, 3, 4, 5, 6, 7, 8, 9, None])
     assert d == {"n": 10, "median": 5.5, "p90": pytest.approx(9.1), "worst": 10.0}
@@ -264,7 +264,7 @@ def test_tails_summary_distributions_over_runs():
 def test_tails_of_a_run_file_and_old_sweeps(tmp_path):
     """sweep_rows reads each run's step records beside its run file; a run without them
     (a sweep from before they were kept) gets None failure figures."""
-    from coordinator.experiments.analysis import read_steps, steps_path
+    from coordinator.experiments.tails import read_steps, steps_path
     from coordinator.experiments.sweep import tails_of
 
     run = _run([-900, 100])

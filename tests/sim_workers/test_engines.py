@@ -31,7 +31,7 @@ def test_unknown_engine_is_named_with_the_known_ones():
 
 
 def test_a_missing_engine_names_its_package(monkeypatch):
-    monkeypatch.setattr(engines, "installed", lambda e: e != "pybullet")
+    monkeypatch.setattr(engines.registry, "installed", lambda e: e != "pybullet")
     with pytest.raises(engines.EngineError, match="the pybullet engine needs the Python package 'pybullet'"):
         engines.check_engine("pybullet")
     assert engines.default_engine() == "mujoco"

@@ -1,0 +1,49 @@
+"""The engine registry: which engines exist, which are installed, the default, and the
+check every ``engine`` field goes through. It imports no engine, so the domain registry
+(``sim_workers.domains``) checks a name without loading a world."""
+from __future__ import annotations
+
+import importlib
+import importlib.util
+
+ENGINES = ("pybullet", "mujoco")
+PACKAGES = {"pybullet": "pybullet", "mujoco": "mujoco"}
+# Each engine's GroundedWorld subclass, by import path (as Gymnasium's entry points): the
+# base class resolves its engine's world here without importing every engine, and no
+# engine module imports the registry back.
+WORLDS = {"pybullet": "sim_workers.engines.pybullet_world:PybulletWorld",
+          "mujoco": "sim_workers.engines.mujoco_world:MujocoWorld"}
+
+
+class EngineError(ValueError):
+    """An engine that is not known or not installed (the message names it and the fix)."""
+
+
+def installed(engine: str) -> bool:
+    return importlib.util.find_spec(PACKAGES[engine]) is not None
+
+
+def default_engine() -> str:
+    """pybullet where it is installed (every result in this repository was made with it),
+    else MuJoCo."""
+    return "pybullet" if installed("pybullet") else "mujoco"
+
+
+def check_engine(engine: str | None, field: str = "engine") -> str:
+    """`engine` (None: the default) as a known, installed engine; EngineError naming
+    `field` otherwise."""
+    if engine is None or engine == "":
+        return default_engine()
+    if engine not in ENGINES:
+        raise EngineError(f"{field}: unknown engine {engine!r} (known: {', '.join(ENGINES)})")
+    if not installed(engine):
+        raise EngineError(f"{field}: the {engine} engine needs the Python package {PACKAGES[engine]!r}, "
+                          f"which is not installed (pip install {PACKAGES[engine]}; its wheels exist only "
+                          "for some CPython versions)")
+    return engine
+
+
+def world_class(engine: str | None):
+    """The ``GroundedWorld`` subclass of `engine` (None: the default)."""
+    module, name = WORLDS[check_engine(engine)].split(":")
+    return getattr(importlib.import_module(module), name)
