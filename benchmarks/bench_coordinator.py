@@ -23,7 +23,7 @@ import numpy as np
 
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
-from coordinator.belief import Belief, mode_mask  # noqa: E402
+from coordinator.particle_filter.belief import Belief, mode_mask  # noqa: E402
 from coordinator.commands.run import parse_options  # noqa: E402
 from coordinator.reality import Observation  # noqa: E402
 from coordinator.run_config import RunConfig  # noqa: E402

@@ -17,7 +17,7 @@ from typing import Callable
 
 import numpy as np
 
-from .belief import Belief, heaviest_class, mode_mask
+from .particle_filter.belief import Belief, heaviest_class, mode_mask
 
 __all__ = ["MAX_MODES", "pose_candidates", "choose_pose"]
 

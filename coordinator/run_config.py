@@ -55,7 +55,7 @@ class RunConfig(BaseModel):
     agent: AgentName = "tmoc"
     particles: int = Field(32, ge=1, le=5000)
     # The particle budget (issue 15): "fixed" keeps `particles`; "kld" chooses the count for
-    # each action by KLD-sampling (coordinator/particle_budget.py) between min_particles
+    # each action by KLD-sampling (coordinator/particle_filter/particle_budget.py) between min_particles
     # (at most `particles`) and `particles`, with bins of kld_bin x each prior's width.
     # epsilon 0.2, not localisation's 0.05: at 0.05 a converged posterior straddling two
     # bins asks for 66 particles, more than the default 32; at 0.2 (17 for 2 bins) the
@@ -96,7 +96,7 @@ class RunConfig(BaseModel):
     # (Before issue 37: 2 %, which is what calibrated the posterior; stored settings keep it.)
     jitter: float = Field(0.1, ge=0, le=1)
     jitter_floor: float = Field(0.001, ge=0, le=0.5)
-    # The filter against model error and lock-in (issue 24; coordinator/reweighting.py). Each
+    # The filter against model error and lock-in (issue 24; coordinator/particle_filter/reweighting.py). Each
     # weighed channel's likelihood is (1 - outlier_rate) N(y; f(L_i), sigma) + outlier_rate x a
     # floor 50 sensor sigmas wide, so a reading no particle explains moves no weight (0: the
     # plain Gaussian). model_error "online" widens sigma by the scatter of the belief's
@@ -121,7 +121,7 @@ class RunConfig(BaseModel):
     # without shrinkage (variance x (1 + h^2) per resample); "jitter": the fixed jitter.
     resample_kernel: Literal["liu_west", "rpf", "jitter"] = "liu_west"
     # With the sizes variation (one entry of L per block): weights per block, an action's
-    # update going to the block it names (coordinator/block_weights.py); with "rpf" only
+    # update going to the block it names (coordinator/particle_filter/block_weights.py); with "rpf" only
     # (the fixed jitter keeps one weight per particle: a schema-valid request is never
     # refused for the pair, issue 25's schemathesis run).
     block_weights: bool = True

@@ -7,7 +7,7 @@ resampled, the experience pool and T are updated, and the plan is kept or replan
 driver (``run_episode`` with a SimulatedReality, or the HTTP service for a real robot)
 calls the two in turn. Episode accounting lives in ``coordinator.episode``, the transit
 to the pre-pose in ``coordinator.transit``, what an observation does to the belief in
-``coordinator.reweighting``; the rest is the loop's steps,
+``coordinator.particle_filter`` (one ``update`` per real step); the rest is the loop's steps,
 which share the session's state.
 """
 from __future__ import annotations
@@ -25,17 +25,14 @@ from sim_workers.properties import SIZES_VARIATION_SCALE
 from sim_workers.trajectory import columns_of
 
 from .agents import agent_spec
-from .belief import Belief, heaviest_class, mode_mask, symbolic_log_likelihood
 from .domains import load as load_domain, property_space, spec as domain_spec
 from .episode import EpisodeStats, utility_terms
 from .experience import ExperiencePool
 from .grounding_bandit import GroundingBandit
-from .particle_budget import next_count
+from .particle_filter import Belief, ParticleFilter, RealStep, Reweighting
+from .particle_filter.belief import heaviest_class, mode_mask, symbolic_log_likelihood
 from .reality import Observation
 from .real_pose import choose_pose, pose_candidates
-from .rejuvenation import rpf_bandwidth
-from .resample_move import MOVE_WINDOW, RealStep, mh_move
-from .reweighting import Reweighting
 from .run_config import AGENT_STREAM, RunConfig, seed_stream, stored_run_config
 from .step_record import step_record
 from .transit import plan_pre_pose_transit
@@ -86,14 +83,14 @@ class Session:
         self.per_block = bool(config.sizes_variation)
         self.dims = self.L.dims(self.n_blocks, self.per_block)
         self.low, self.high = self.L.bounds(self.n_blocks, self.per_block)
-        self.belief = (Belief.from_prior(config.particles, self.low, self.high, self.rng)
-                       if self.agent.learn_belief else None)
-        if self.belief is not None and config.known_properties:
+        belief = (Belief.from_prior(config.particles, self.low, self.high, self.rng)
+                  if self.agent.learn_belief else None)
+        # The belief with its likelihood, kernel, monitor and move window (issues 24, 37).
+        self.filter = ParticleFilter(belief, Reweighting(config, self.domain.measurement_model(),
+                                                         list(self.domain.block_names),
+                                                         len(self.L.names), self.per_block), config)
+        if belief is not None and config.known_properties:
             self.belief = self._point_belief(config)
-        # Likelihood, resampling kernel and lock-in watch, with their state (issue 24).
-        self.reweighting = Reweighting(config, self.domain.measurement_model(),
-                                       list(self.domain.block_names),
-                                       len(self.L.names), self.per_block)
         self.experience = ExperiencePool(self.task.context_of)
         self.transition = self._transition_model()
         self.episode = 0
@@ -113,12 +110,27 @@ class Session:
         # The current episode's steps as records (coordinator.step_record: what an export
         # needs); not checkpointed: a run or session resumes at an episode's start.
         self.step_records: list[dict] = []
-        # The episode's latest real steps, for the resample-move (coordinator.resample_move);
-        # not checkpointed: emptied at each episode's start, so a resumed run matches.
-        self.recent: list[RealStep] = []
         # TMP-RL's grounding by trial and error (its arm for the pending action, if any).
         self.bandit = GroundingBandit(self.low, self.high) if self.agent.grasp == "bandit" else None
         self._arm: tuple[str, int] | None = None
+
+    @property
+    def belief(self) -> Belief | None:
+        """The belief over L (``self.filter``'s)."""
+        return self.filter.belief
+
+    @belief.setter
+    def belief(self, value: Belief | None) -> None:
+        self.filter.belief = value
+
+    @property
+    def reweighting(self) -> Reweighting:
+        return self.filter.reweighting
+
+    @property
+    def recent(self) -> list[RealStep]:
+        """The episode's latest real steps (the resample-move's window)."""
+        return self.filter.recent
 
     def _point_belief(self, config: RunConfig) -> Belief:
         """Every particle at the true properties (L given, as in the paper's real-robot
@@ -181,7 +193,7 @@ class Session:
         self.pending = None
         self.stats = EpisodeStats()
         self.step_records = []
-        self.recent = []
+        self.filter.start_episode()
         self._t0 = time.perf_counter()
 
     @property
@@ -403,52 +415,30 @@ class Session:
         # outcome was absorbed (the paper adds the worlds' outcomes, then weighs them; with the
         # weights after, the real outcome was counted twice, issue 37).
         prior_weights = self._action_belief(step.action)[0].weights
-        update = self.reweighting.weigh(self.belief, step.action, loglik, observation.measurements,
-                                        res["measurements"])
+        real = RealStep(start, step.action, step.trajectory, step.transit_end, step.expected,
+                        observation.state, np.asarray(observation.measurements, dtype=np.float64))
+        update = self.filter.update(real, loglik, res["measurements"], self.rng,
+                                    self._simulate_rows, self._symbolic_loglik)
+        self.particle_actions += update.simulated
         if self.agent.sim_experience:      # weighted by how plausible each is for this action
             self.experience.add_simulated(before.state, step.action, res["states"], step.expected,
                                           prior_weights)
-        self.recent.append(RealStep(start, step.action, step.trajectory, step.transit_end, step.expected,
-                                    observation.state, np.asarray(observation.measurements, dtype=np.float64)))
-        del self.recent[:-MOVE_WINDOW]
-        # (A point belief at the truth, known_properties, is never redrawn nor resized.)
-        resampled, injected = self.reweighting.resample(self.belief, self.rng, step.action,
-                                                        rejuvenate=not self.config.known_properties)
-        injected += self._resample_move()
         self.stats.particle_counts.append(len(sizes))
-        self.stats.count_update(update.informative, injected)
-        report = {"ess": float(self.belief.ess()), "resampled": bool(resampled), "particles": len(sizes),
-                  "information": update.information, "explained": update.explained, "injected": injected}
-        if self.config.particle_budget == "kld" and not self.config.known_properties:
-            n = self._kld_count()
-            if n != self.belief.n:
-                self.reweighting.resample_to(self.belief, n, self.rng)
-                report["resampled"] = True
-            report["next_particles"] = n
-        return report
+        self.stats.count_update(update.informative, update.injected)
+        return update.report()
+
+    def _simulate_rows(self, *args, **kwargs) -> dict:
+        """The particle worlds as the filter sees them (a callable; its time is physics)."""
+        t0 = time.perf_counter()
+        out = self.shard_pool.simulate(*args, **kwargs)
+        self.stats.physics_s += time.perf_counter() - t0
+        return out
 
     def _resample_move(self) -> int:
         """The Metropolis-Hastings move the lock-in monitor asked for, if any (rows moved)."""
-        dims = self.reweighting.pending_move
-        if dims is None:
-            return 0
-        self.reweighting.pending_move = None
-        b = self.belief
-        width = b.high - b.low
-        scale = np.maximum(rpf_bandwidth(b.n, dims.size) * b.std()[dims],
-                           max(self.config.jitter_floor, 1e-6) * width[dims])
-        t0 = time.perf_counter()
-        rows, moved = mh_move(b.particles, dims, b.low, b.high, scale, self.recent,
-                              self.shard_pool.simulate, self._step_loglik, self.rng)
-        self.stats.physics_s += time.perf_counter() - t0
-        self.particle_actions += 2 * b.n * len(self.recent)
-        b.particles = rows
+        moved, spent = self.filter.move_if_due(self.rng, self._simulate_rows, self._symbolic_loglik)
+        self.particle_actions += spent
         return moved
-
-    def _step_loglik(self, step: RealStep, res: dict) -> np.ndarray:
-        """Each simulated row's log-likelihood of a recorded real step (no state changes)."""
-        sym = self._symbolic_loglik(step, step.observed, res["states"])
-        return self.reweighting.log_likelihood(sym, step.measurements, res["measurements"])[0]
 
     def _predicted(self, step: PendingStep, observed: frozenset[str], res: dict, rows: np.ndarray):
         """The particles' predictions of this action, for its picture (copies; reads only)."""
@@ -462,14 +452,8 @@ class Session:
         return Prediction(np.array(res["configurations"], copy=True), list(res["states"]),
                           self.belief.weights.copy(), np.array(matched, dtype=bool), rows.copy())
 
-    def _kld_count(self) -> int:
-        """The next action's particle count (KLD-sampling over the current posterior)."""
-        c = self.config
-        return next_count(self.belief.particles, self.belief.weights, self.belief.low, self.belief.high,
-                          n_min=c.min_particles, n_max=c.particles, bin_fraction=c.kld_bin,
-                          epsilon=c.kld_epsilon, quantile=c.kld_quantile)
-
-    def _symbolic_loglik(self, step: PendingStep, observed: frozenset[str], predicted: list) -> np.ndarray:
+    def _symbolic_loglik(self, step: PendingStep | RealStep, observed: frozenset[str],
+                         predicted: list) -> np.ndarray:
         """p(s' | s_i'), a match model with a small error rate.
 
         `match="success"` (default) compares whether the action had its planned effect in

@@ -19,8 +19,8 @@ from typing import Callable, Literal
 
 import numpy as np
 
-from ..belief import gaussian_log_likelihood, logsumexp, symbolic_log_likelihood
-from ..likelihood import OUTLIER_WIDTH_SIGMAS, robust_log_likelihood
+from ..particle_filter.belief import gaussian_log_likelihood, logsumexp, symbolic_log_likelihood
+from ..particle_filter.likelihood import OUTLIER_WIDTH_SIGMAS, robust_log_likelihood
 
 __all__ = ["RefilterError", "entries", "judge", "load_run", "reference_posterior", "score"]
 

@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from coordinator.belief import (
+from coordinator.particle_filter.belief import (
     Belief,
     gaussian_log_likelihood,
     symbolic_log_likelihood,
@@ -246,7 +246,7 @@ def test_gaussian_log_likelihood_values_and_nan():
 
 def test_mode_mask_shortcut_agrees_with_the_full_density():
     """The O(1) shortcut for a narrow belief keeps exactly what the N^2 density keeps."""
-    from coordinator.belief import mode_mask
+    from coordinator.particle_filter.belief import mode_mask
     rng = np.random.default_rng(3)
     bw = 0.003
     for width in (0.0005, 0.002, 0.0042, 0.02):
@@ -265,7 +265,7 @@ def test_mode_mask_shortcut_agrees_with_the_full_density():
 def test_heaviest_class_keeps_one_class_of_the_mode():
     """Particles of the mode on both sides of a switch in Y: only the heavier side is
     averaged; a mode of one class comes back as it was (the same array)."""
-    from coordinator.belief import heaviest_class
+    from coordinator.particle_filter.belief import heaviest_class
     classes = np.array([1, 1, 0, 0, 0])
     keep = np.array([True, True, True, True, False])
     w = np.array([0.3, 0.3, 0.1, 0.1, 0.2])          # the dropped particle's weight does not count
@@ -284,7 +284,7 @@ def test_mode_above_the_exact_limit_keeps_the_exact_mode(dim):
     weight: on beliefs with a heavier mode (three modes of different weight and width), the
     densest candidate's density is within 3 % of the exact maximum and the kept set is the
     exact one's to >= 95 %, in one, two and sixteen dimensions (per-block L)."""
-    from coordinator.belief import MODE_EXACT_MAX, mode_candidates, mode_mask
+    from coordinator.particle_filter.belief import MODE_EXACT_MAX, mode_candidates, mode_mask
     rng = np.random.default_rng(5)
     bw = 0.003
     n = MODE_EXACT_MAX + 488

@@ -87,7 +87,7 @@ def test_mode_scale_puts_each_property_in_its_own_units():
     """The pose mode compares particles per dimension in units of each prior's width: two
     particles 5 kg/m^3 apart are one mode (1/540 of the prior, like 0.06 mm of size),
     two 1000 kg/m^3 apart are not (the bandwidth is 3 mm of a 30 mm prior, 10 %)."""
-    from coordinator.belief import mode_mask
+    from coordinator.particle_filter.belief import mode_mask
 
     s = Session(RunConfig(domain="stack_and_push", options=UNKNOWN))
     scale = s._mode_scale()
@@ -150,7 +150,7 @@ def test_a_coarse_sensor_leaves_the_density_posterior_wider():
     sensor) it stays several times wider. (Over whole episodes a small particle set also
     narrows along unobserved dimensions by resampling alone, so the update is where the
     sensor's effect is measured.)"""
-    from coordinator.belief import Belief, gaussian_log_likelihood
+    from coordinator.particle_filter.belief import Belief, gaussian_log_likelihood
     from sim_workers.grounded_world import GroundedWorld
     from sim_workers.shard import Shard
     from sim_workers.stack_and_push import StackAndPushDomain

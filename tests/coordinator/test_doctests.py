@@ -11,7 +11,8 @@ import importlib
 
 import pytest
 
-MODULES = ("coordinator.belief", "coordinator.likelihood", "coordinator.rejuvenation",
+MODULES = ("coordinator.particle_filter.belief", "coordinator.particle_filter.likelihood",
+           "coordinator.particle_filter.rejuvenation",
            "coordinator.transition_model", "coordinator.fanout")
 
 

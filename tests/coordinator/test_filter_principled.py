@@ -16,11 +16,11 @@ import math
 import numpy as np
 import pytest
 
-from coordinator.belief import Belief
-from coordinator.model_error import ModelError
+from coordinator.particle_filter.belief import Belief
+from coordinator.particle_filter.model_error import ModelError
 from coordinator.real_pose import choose_pose, pose_candidates
-from coordinator.rejuvenation import regularise
-from coordinator.resample_move import RealStep, mh_move
+from coordinator.particle_filter.rejuvenation import regularise
+from coordinator.particle_filter.resample_move import RealStep, mh_move
 from coordinator.run_config import PRE_ISSUE_37_FILTER, RunConfig
 from coordinator.session import Session
 
@@ -95,19 +95,15 @@ def _opening_world(start, rows, action, trajectory, start_time) -> dict:
 
 def _drive(s: Session, truth: float, readings: int, rng) -> Session:
     """`readings` successful pickups whose openings read the truth with the sensor's noise;
-    the filter as the session runs it (weigh, resample, move when the monitor asks)."""
-    s.shard_pool = type("Worlds", (), {"simulate": staticmethod(_opening_world)})()
+    the filter's one update, as the session runs it (weigh, resample, move when asked)."""
     action, ok = "pickup(r,b1,init)", frozenset({"ok"})
     for _ in range(readings):
         obs = np.full(17, np.nan)
         obs[0] = truth + rng.normal(0, SIGMA)
         pred = _opening_world(None, s.belief.particles, action, None, 0.0)
         sym = np.full(s.belief.n, math.log1p(-s.config.error_rate))
-        s.reweighting.weigh(s.belief, action, sym, obs, pred["measurements"])
-        s.recent.append(RealStep(np.zeros(1), action, np.zeros((2, 6)), 0.0, ok, ok, obs))
-        del s.recent[:-8]
-        s.reweighting.resample(s.belief, s.rng, action)
-        s._resample_move()
+        step = RealStep(np.zeros(1), action, np.zeros((2, 6)), 0.0, ok, ok, obs)
+        s.filter.update(step, sym, pred["measurements"], s.rng, _opening_world, s._symbolic_loglik)
     return s
 
 

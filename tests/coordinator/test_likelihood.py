@@ -7,10 +7,10 @@ import math
 import numpy as np
 import pytest
 
-from coordinator.belief import Belief, gaussian_log_likelihood
-from coordinator.likelihood import (INFORMATIVE_NATS, normalised_evidence, perfect_log_likelihood,
+from coordinator.particle_filter.belief import Belief, gaussian_log_likelihood
+from coordinator.particle_filter.likelihood import (INFORMATIVE_NATS, normalised_evidence, perfect_log_likelihood,
                                     robust_log_likelihood, update_information)
-from coordinator.model_error import MIN_COUNT, ModelError, model_variance
+from coordinator.particle_filter.model_error import MIN_COUNT, ModelError, model_variance
 
 LOW, HIGH, SIGMA = 0.030, 0.060, 0.002
 

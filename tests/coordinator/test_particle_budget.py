@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from coordinator.belief import Belief
+from coordinator.particle_filter.belief import Belief
 from coordinator.fanout import ShardPool
-from coordinator.particle_budget import kld_count, next_count, occupied_bins
+from coordinator.particle_filter.particle_budget import kld_count, next_count, occupied_bins
 from coordinator.run_config import RunConfig
 from coordinator.runner import run
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from coordinator.belief import Belief
+from coordinator.particle_filter.belief import Belief
 from coordinator.reality import Observation
 from coordinator.run_config import RunConfig
 from coordinator.session import Session

@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from coordinator.belief import Belief
-from coordinator.rejuvenation import LockInMonitor, action_blocks, inject_prior, regularise, rpf_bandwidth
+from coordinator.particle_filter.belief import Belief
+from coordinator.particle_filter.rejuvenation import LockInMonitor, action_blocks, inject_prior, regularise, rpf_bandwidth
 
 
 def test_the_bandwidth_is_musso_oudjane_le_gland():

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from pydantic import ValidationError
 
-from coordinator.belief import gaussian_log_likelihood
+from coordinator.particle_filter.belief import gaussian_log_likelihood
 from coordinator.run_config import PRE_ISSUE_24_FILTER, RunConfig, stored_run_config
 from coordinator.session import Session
 
@@ -176,7 +176,7 @@ def test_an_old_checkpoint_loads_and_keeps_the_filter_it_ran_with():
     rng_ref = np.random.default_rng(3)
     old.reweighting.resample(old.belief, np.random.default_rng(3), "pickup(r,b1,init)")
     # What the loop did before: Gaussian on the opening, then resampling with jitter 0.1.
-    from coordinator.belief import Belief
+    from coordinator.particle_filter.belief import Belief
     ref = Belief(reference[0], reference[1], old.belief.low, old.belief.high)
     ref.update(ll + gaussian_log_likelihood([0.043], sizes[:, None], [0.002]))
     ref.maybe_resample(rng_ref, jitter=0.1, jitter_floor=old.config.jitter_floor)
@@ -208,7 +208,7 @@ def test_the_filter_settings_are_validated():
     # Weights per block go with the Musso kernel only; with the fixed jitter the pair is
     # accepted (a schema-valid request) and the weights stay one per particle.
     assert RunConfig(resample_kernel="jitter").block_weights
-    from coordinator.reweighting import Reweighting
+    from coordinator.particle_filter.reweighting import Reweighting
     rw = Reweighting(RunConfig(resample_kernel="jitter", sizes_variation=True),
                      (np.zeros(0, dtype=np.int64), np.zeros(0)), ["b1", "b2"], 1, per_block=True)
     assert rw._block_groups() == []
@@ -254,7 +254,7 @@ def test_block_weights_keep_one_blocks_data_from_moving_another():
 
 
 def test_group_weights_multiply_and_round_trip():
-    from coordinator.block_weights import GroupWeights
+    from coordinator.particle_filter.block_weights import GroupWeights
 
     s = session(sizes_variation=True)
     _pickups_of_block_2(s, 2)
@@ -266,7 +266,7 @@ def test_group_weights_multiply_and_round_trip():
     back = GroupWeights.from_dict(json.loads(json.dumps(g.to_dict())), s.belief.dim)
     assert np.array_equal(back.log_w, g.log_w) and all(np.array_equal(a, b) for a, b in zip(back.groups, g.groups))
     # Resampling whole rows carries each row's block weights along (no kernel: h 0).
-    from coordinator.belief import Belief, systematic_resample
+    from coordinator.particle_filter.belief import Belief, systematic_resample
 
     b = Belief([[0.031, 0.05], [0.032, 0.04], [0.033, 0.03], [0.034, 0.06]], np.log([0.1, 0.2, 0.3, 0.4]),
                [0.03, 0.03], [0.06, 0.06])

@@ -26,7 +26,7 @@ Choices this module makes (and the rest of the loop can rely on):
   when the posterior has collapsed onto one particle. Jittered values are reflected at the
   prior bounds (a triangle wave, so any magnitude lands inside) and then clipped against
   rounding, so a particle never leaves [low, high]. (The session's filter resamples with the
-  Musso kernel on every particle instead, by default: ``coordinator.rejuvenation``.)
+  Musso kernel on every particle instead, by default: ``coordinator.particle_filter.rejuvenation``.)
 """
 from __future__ import annotations
 

@@ -3,12 +3,12 @@ the Bayes update, resampling with a regularising kernel and, when no particle ex
 observation, fresh draws from the prior (issue 24).
 
 The session simulates the particles and scores the symbolic outcome; this module adds the
-measurement channels (``coordinator.likelihood``: a robust mixture, with the likelihood's
-sigma widened by the measured model error, ``coordinator.model_error``), tempers an update
+measurement channels (``coordinator.particle_filter.likelihood``: a robust mixture, with the likelihood's
+sigma widened by the measured model error, ``coordinator.particle_filter.model_error``), tempers an update
 that would cut the effective sample size by more than ``ess_keep``, updates the belief and
 says whether the update was informative, then resamples with the Musso kernel and watches
-for lock-in (``coordinator.rejuvenation``). Under the sizes variation the weights are kept
-per block (``coordinator.block_weights``), an action's update going to the block it
+for lock-in (``coordinator.particle_filter.rejuvenation``). Under the sizes variation the weights are kept
+per block (``coordinator.particle_filter.block_weights``), an action's update going to the block it
 names. Its state (model error, lock-in averages, block weights) goes into the session's
 checkpoint.
 
@@ -31,7 +31,7 @@ from .likelihood import (INFORMATIVE_NATS, OUTLIER_WIDTH_SIGMAS, ess_temper, nor
                          perfect_log_likelihood, robust_log_likelihood, update_information)
 from .model_error import BIAS_Z, ModelError
 from .rejuvenation import EXPLAINED, LockInMonitor, action_blocks, inject_prior, regularise, rpf_bandwidth
-from .run_config import RunConfig
+from ..run_config import RunConfig
 
 __all__ = ["Reweighting", "UpdateOutcome"]
 

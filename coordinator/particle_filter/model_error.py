@@ -38,7 +38,7 @@ MAX_HISTORY = 400                     # the latest innovations kept per channel 
 # within about one episode's readings (the container: ~16 weighed readings an episode).
 CENTERED_HISTORY = 40
 # The innovation test's window and threshold (`bias_z`): the last 8 innovations of a
-# channel (the resample-move's window, coordinator.resample_move.MOVE_WINDOW), and 3: under a
+# channel (the resample-move's window, coordinator.particle_filter.resample_move.MOVE_WINDOW), and 3: under a
 # calibrated belief their normalised sum is standard normal, so |z| > 3 has probability
 # 0.0027 per reading (about one needless, harmless move in 400 readings).
 BIAS_WINDOW = 8

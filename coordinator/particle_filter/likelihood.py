@@ -6,7 +6,7 @@ Probabilistic Robotics, 6.3):
 
     p(y_c | L_i) = (1 - eps) N(y_c; f_c(L_i), sigma_c) + eps / W_c
 
-The Gaussian is the sensor (and the model error, ``coordinator.model_error``) around the
+The Gaussian is the sensor (and the model error, ``coordinator.particle_filter.model_error``) around the
 particle's prediction; the flat floor eps / W_c, over a width W_c of ``OUTLIER_WIDTH_SIGMAS``
 sensor sigmas, is what the particle worlds do not model (a cube that fell off the pile, a
 tilted block). A particle that predicts y_c within ~3.4 sigma keeps the Gaussian's full
@@ -22,13 +22,13 @@ likelihood*, not SMC tempering: adaptive tempering (Jasra, Stephens, Doucet and 
 2011) takes the rest of the likelihood in later steps with moves between, and this throws
 it away for good. It kept a failure at one grasp mode from ever resampling (the seed-91
 grasp loop of issue 37), so the default is now the whole likelihood, with the kernel and
-the resample-move (``coordinator.resample_move``) keeping the particle set alive.
+the resample-move (``coordinator.particle_filter.resample_move``) keeping the particle set alive.
 
 Each update's information is its Kullback-Leibler divergence from the weights before
 (``update_information``); the session counts updates above ``INFORMATIVE_NATS`` as
 informative. ``normalised_evidence`` is how well the belief as a whole predicted an
 observation (1: every particle exactly), what the lock-in monitor
-(``coordinator.rejuvenation``) averages with ``recovery="mh_move"`` (issue 37).
+(``coordinator.particle_filter.rejuvenation``) averages with ``recovery="mh_move"`` (issue 37).
 """
 from __future__ import annotations
 

@@ -1,7 +1,7 @@
 """Resample-move: the filter's recovery when the particles have stopped explaining what
 the robot observes (issue 37).
 
-The lock-in monitor (``coordinator.rejuvenation.LockInMonitor``, fed with augmented MCL's
+The lock-in monitor (``coordinator.particle_filter.rejuvenation.LockInMonitor``, fed with augmented MCL's
 average likelihood) says when the particle set is impoverished: a run of observations the
 belief as a whole predicted badly. Redrawing rows from the prior at uniform weight (issue
 24's answer) throws away what the rows had learned and hands new hypotheses a weight no

@@ -1,0 +1,134 @@
+"""The particle filter over L as one object with one update: what a real step does to the
+belief once the particle worlds have replayed it.
+
+``ParticleFilter.update`` runs, in order (docs/LOOP.md, "The filter under a judge"):
+
+1. **weigh**: the step's whole likelihood (symbolic outcome times the measurement
+   channels' robust likelihood, model error included), per block group where L is per
+   block (``Reweighting.weigh``);
+2. **remember** the step for the resample-move window (the episode's last
+   ``MOVE_WINDOW`` real steps);
+3. **resample** with the Liu-West kernel where the effective sample size asks for it
+   (``Reweighting.resample``);
+4. **move**: one Metropolis-Hastings step per row against the window if the lock-in
+   monitor or the innovation bias test asked for one (``resample_move.mh_move``);
+5. **resize**: the next action's particle count by KLD-sampling (``particle_budget``),
+   when the run's budget is ``kld``.
+
+The filter sees the particle worlds only as a callable (``simulate(start, rows, action,
+trajectory, start_time) -> {"states", "measurements", ...}``) and the symbolic match as
+another (``symbolic(step, observed, predicted_states) -> log-likelihood per row``): it
+imports neither the worlds nor the planner, and the session owns neither its arithmetic.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+
+from .belief import Belief
+from .particle_budget import next_count
+from .rejuvenation import rpf_bandwidth
+from .resample_move import MOVE_WINDOW, RealStep, mh_move
+from .reweighting import Reweighting
+
+__all__ = ["FilterUpdate", "ParticleFilter", "Simulate", "Symbolic"]
+
+Simulate = Callable[..., dict]
+Symbolic = Callable[[RealStep, frozenset, list], np.ndarray]
+
+
+@dataclass(frozen=True)
+class FilterUpdate:
+    """What one real step did to the belief (the session's step report reads it)."""
+
+    ess: float                 # effective sample size after the update
+    resampled: bool
+    particles: int             # rows that weighed this step
+    information: float         # nats the step moved the belief (``Reweighting.weigh``)
+    explained: bool            # some row predicted the step (the monitor's input)
+    injected: int              # rows moved (resample-move) or redrawn (recovery="prior")
+    next_particles: int | None   # the KLD count for the next action (None: fixed budget)
+    informative: bool          # the step carried information (the episode's counter)
+    simulated: int             # particle-actions the move spent re-simulating its window
+
+    def report(self) -> dict:
+        out = {"ess": self.ess, "resampled": self.resampled, "particles": self.particles,
+               "information": self.information, "explained": self.explained, "injected": self.injected}
+        if self.next_particles is not None:
+            out["next_particles"] = self.next_particles
+        return out
+
+
+class ParticleFilter:
+    """The belief over L, its reweighting state and the move window (one per session)."""
+
+    def __init__(self, belief: Belief | None, reweighting: Reweighting, config) -> None:
+        self.belief = belief
+        self.reweighting = reweighting
+        self.config = config
+        # The episode's latest real steps (the move's window); not checkpointed: emptied at
+        # each episode's start, so a resumed run matches an uninterrupted one.
+        self.recent: list[RealStep] = []
+
+    def start_episode(self) -> None:
+        self.recent = []
+
+    @property
+    def frozen(self) -> bool:
+        """A point belief at the truth (``known_properties``): never redrawn nor resized."""
+        return bool(self.config.known_properties)
+
+    def update(self, step: RealStep, symbolic_ll: np.ndarray, simulated_measurements: np.ndarray,
+               rng: np.random.Generator, simulate: Simulate, symbolic: Symbolic) -> FilterUpdate:
+        """One real step's whole update of the belief (steps 1-5 of the module's docstring).
+
+        `symbolic_ll`: each row's log-likelihood of the observed symbolic outcome;
+        `simulated_measurements`: each row's simulated measurement channels (N, C), against
+        `step.measurements`. `simulate` and `symbolic` re-simulate and re-score the window
+        if a move is due; `rng` is the session's seeded generator (every draw here)."""
+        b, rw = self.belief, self.reweighting
+        n = b.n
+        weighed = rw.weigh(b, step.action, symbolic_ll, step.measurements, simulated_measurements)
+        self.recent.append(step)
+        del self.recent[:-MOVE_WINDOW]
+        resampled, injected = rw.resample(b, rng, step.action, rejuvenate=not self.frozen)
+        moved, spent = self._move(rng, simulate, symbolic)
+        next_n = None
+        if self.config.particle_budget == "kld" and not self.frozen:
+            next_n = self.kld_count()
+            if next_n != b.n:
+                rw.resample_to(b, next_n, rng)
+                resampled = True
+        return FilterUpdate(float(b.ess()), bool(resampled), n, weighed.information, weighed.explained,
+                            injected + moved, next_n, weighed.informative, spent)
+
+    def move_if_due(self, rng: np.random.Generator, simulate: Simulate, symbolic: Symbolic) -> tuple[int, int]:
+        """The pending Metropolis-Hastings move, if any: (rows moved, particle-actions spent)."""
+        return self._move(rng, simulate, symbolic)
+
+    def _move(self, rng: np.random.Generator, simulate: Simulate, symbolic: Symbolic) -> tuple[int, int]:
+        dims = self.reweighting.pending_move
+        if dims is None:
+            return 0, 0
+        self.reweighting.pending_move = None
+        b = self.belief
+        width = b.high - b.low
+        scale = np.maximum(rpf_bandwidth(b.n, dims.size) * b.std()[dims],
+                           max(self.config.jitter_floor, 1e-6) * width[dims])
+
+        def step_loglik(real: RealStep, res: dict) -> np.ndarray:
+            sym = symbolic(real, real.observed, res["states"])
+            return self.reweighting.log_likelihood(sym, real.measurements, res["measurements"])[0]
+
+        rows, moved = mh_move(b.particles, dims, b.low, b.high, scale, self.recent, simulate, step_loglik, rng)
+        spent = 2 * b.n * len(self.recent)
+        b.particles = rows
+        return moved, spent
+
+    def kld_count(self) -> int:
+        """The next action's particle count (KLD-sampling over the current posterior)."""
+        c, b = self.config, self.belief
+        return next_count(b.particles, b.weights, b.low, b.high, n_min=c.min_particles, n_max=c.particles,
+                          bin_fraction=c.kld_bin, epsilon=c.kld_epsilon, quantile=c.kld_quantile)
