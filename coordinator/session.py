@@ -31,6 +31,7 @@ from .experience import ExperiencePool
 from .grounding_bandit import GroundingBandit
 from .particle_filter import Belief, ParticleFilter, RealStep, Reweighting
 from .particle_filter.belief import heaviest_class, mode_mask, symbolic_log_likelihood
+from .perception import world_starts
 from .reality import Observation
 from .real_pose import choose_pose, pose_candidates
 from .run_config import AGENT_STREAM, RunConfig, seed_stream, stored_run_config
@@ -270,9 +271,7 @@ class Session:
         def success(x: np.ndarray) -> np.ndarray:
             traj = self.domain.action_trajectory(config, action, x)
             t_pre = self.domain.transit_end_time(config, action, x)
-            t0 = time.perf_counter()
-            res = self.shard_pool.simulate(start, np.ascontiguousarray(view.particles), action, traj, t_pre)
-            self.stats.physics_s += time.perf_counter() - t0
+            res = self._simulate_rows(start, np.ascontiguousarray(view.particles), action, traj, t_pre)
             self.particle_actions += view.n
             self.particle_steps += int(res["steps"].sum())
             return np.array([s == expected for s in res["states"]], dtype=np.float64)
@@ -390,22 +389,20 @@ class Session:
         return report
 
     def _reweight(self, before: Observation, step: PendingStep, observation: Observation) -> dict:
-        t0 = time.perf_counter()
         # The wire carries rows of L (N, D); each shard expands a row with the domain.
         sizes = np.ascontiguousarray(self.belief.particles)
         start = before.configuration.to_array()
         if self.config.likelihood == "replay":
-            res = self.shard_pool.simulate(start, sizes, step.action, step.trajectory, step.transit_end)
+            res = self._simulate_rows(start, sizes, step.action, step.trajectory, step.transit_end)
         else:  # "paper": each particle runs its own trajectory to its own pose x_i
             trajs = np.array([self.domain.action_trajectory(before.configuration, step.action, xi)
                               for xi in step.particle_poses])
             t_pre = np.array([0.0 if step.unchecked_transit else
                               self.domain.transit_end_time(before.configuration, step.action, xi)
                               for xi in step.particle_poses])
-            res = self.shard_pool.simulate(start, sizes, step.action, trajs, t_pre)
+            res = self._simulate_rows(start, sizes, step.action, trajs, t_pre)
         if step.unchecked_transit:
             self.stats.replayed_fallback()
-        self.stats.physics_s += time.perf_counter() - t0
         self.particle_actions += len(sizes)
         self.particle_steps += int(res["steps"].sum())
         loglik = self._symbolic_loglik(step, observation.state, res["states"])
@@ -427,10 +424,15 @@ class Session:
         self.stats.count_update(update.informative, update.injected)
         return update.report()
 
-    def _simulate_rows(self, *args, **kwargs) -> dict:
-        """The particle worlds as the filter sees them (a callable; its time is physics)."""
+    def _simulate_rows(self, start: np.ndarray, rows: np.ndarray, action: str, trajectory: np.ndarray,
+                       start_time=0.0) -> dict:
+        """The particle worlds, one per row of L, each from its own draw of where the
+        perceived objects truly are (``coordinator.perception``); the filter sees this
+        callable. Its time is physics."""
+        starts = world_starts(start, len(rows), self.domain.jittered_objects, self.config.perception_sigma,
+                              self.rng)
         t0 = time.perf_counter()
-        out = self.shard_pool.simulate(*args, **kwargs)
+        out = self.shard_pool.simulate(starts, rows, action, trajectory, start_time)
         self.stats.physics_s += time.perf_counter() - t0
         return out
 
