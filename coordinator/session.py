@@ -31,7 +31,7 @@ from .experience import ExperiencePool
 from .grounding_bandit import GroundingBandit
 from .particle_filter import Belief, ParticleFilter, RealStep, Reweighting
 from .particle_filter.belief import heaviest_class, mode_mask, symbolic_log_likelihood
-from .perception import world_starts
+from .perception import perceived_trajectories
 from .reality import Observation
 from .real_pose import choose_pose, pose_candidates
 from .run_config import AGENT_STREAM, RunConfig, seed_stream, stored_run_config
@@ -426,13 +426,13 @@ class Session:
 
     def _simulate_rows(self, start: np.ndarray, rows: np.ndarray, action: str, trajectory: np.ndarray,
                        start_time=0.0) -> dict:
-        """The particle worlds, one per row of L, each from its own draw of where the
-        perceived objects truly are (``coordinator.perception``); the filter sees this
+        """The particle worlds, one per row of L, each meeting the objects off by its own
+        draw of the perception error (``coordinator.perception``); the filter sees this
         callable. Its time is physics."""
-        starts = world_starts(start, len(rows), self.domain.jittered_objects, self.config.perception_sigma,
-                              self.rng)
+        traj = perceived_trajectories(self.domain, self._props(self.believed_row()), start, action, trajectory,
+                                      len(rows), self.config.perception_sigma, self.rng)
         t0 = time.perf_counter()
-        out = self.shard_pool.simulate(starts, rows, action, trajectory, start_time)
+        out = self.shard_pool.simulate(start, rows, action, traj, start_time)
         self.stats.physics_s += time.perf_counter() - t0
         return out
 

@@ -376,6 +376,18 @@ def symbolic_log_likelihood(
     return np.where(match, math.log1p(-error_rate), miss)
 
 
+def observed_and_predicted(observed, predicted) -> tuple[np.ndarray, np.ndarray]:
+    """`observed` as (M,) and `predicted` as (N, M) float arrays; ValueError on a shape
+    that does not pair them."""
+    obs = np.asarray(observed, dtype=np.float64).reshape(-1)
+    pred = np.asarray(predicted, dtype=np.float64)
+    if pred.ndim == 1:
+        pred = pred.reshape(-1, obs.shape[0]) if obs.shape[0] else pred.reshape(-1, 0)
+    if pred.ndim != 2 or pred.shape[1] != obs.shape[0]:
+        raise ValueError(f"predicted: shape {pred.shape}, expected (N, {obs.shape[0]})")
+    return obs, pred
+
+
 def gaussian_log_likelihood(
     observed: np.ndarray, predicted: np.ndarray, sigma: float | np.ndarray
 ) -> np.ndarray:
@@ -388,12 +400,7 @@ def gaussian_log_likelihood(
     >>> gaussian_log_likelihood([0.0, np.nan], [[0.0, 5.0], [1.0, 0.0]], sigma=1.0).round(3).tolist()
     [-0.919, -1.419]
     """
-    obs = np.asarray(observed, dtype=np.float64).reshape(-1)
-    pred = np.asarray(predicted, dtype=np.float64)
-    if pred.ndim == 1:
-        pred = pred.reshape(-1, obs.shape[0]) if obs.shape[0] else pred.reshape(-1, 0)
-    if pred.ndim != 2 or pred.shape[1] != obs.shape[0]:
-        raise ValueError(f"predicted: shape {pred.shape}, expected (N, {obs.shape[0]})")
+    obs, pred = observed_and_predicted(observed, predicted)
     sig = np.broadcast_to(np.asarray(sigma, dtype=np.float64), obs.shape)
     if np.any(~(sig > 0)):
         raise ValueError("sigma: must be positive")

@@ -36,6 +36,8 @@ import math
 
 import numpy as np
 
+from .belief import observed_and_predicted
+
 __all__ = ["INFORMATIVE_NATS", "OUTLIER_WIDTH_SIGMAS", "robust_log_likelihood",
            "perfect_log_likelihood", "update_information", "normalised_evidence", "ess_temper"]
 
@@ -54,12 +56,7 @@ INFORMATIVE_NATS = 1e-3
 
 def _measured(observed, predicted, sigma, width) -> tuple[np.ndarray, ...]:
     """The measured columns (observed not NaN) of every argument, checked."""
-    obs = np.asarray(observed, dtype=np.float64).reshape(-1)
-    pred = np.asarray(predicted, dtype=np.float64)
-    if pred.ndim == 1:
-        pred = pred.reshape(-1, obs.shape[0]) if obs.shape[0] else pred.reshape(-1, 0)
-    if pred.ndim != 2 or pred.shape[1] != obs.shape[0]:
-        raise ValueError(f"predicted: shape {pred.shape}, expected (N, {obs.shape[0]})")
+    obs, pred = observed_and_predicted(observed, predicted)
     sig = np.broadcast_to(np.asarray(sigma, dtype=np.float64), obs.shape)
     wid = np.broadcast_to(np.asarray(width, dtype=np.float64), obs.shape)
     if np.any(~(sig > 0)) or np.any(~(wid > 0)):
