@@ -244,7 +244,6 @@ class ShardPool:
         """
         sizes = np.asarray(sizes, dtype=np.float64)
         n = len(sizes)
-        start = np.asarray(start, dtype=np.float64)     # (D,) shared or (n, D) one per particle
         starts = np.broadcast_to(np.asarray(start_time, dtype=np.float64), (n,))
         traj = np.asarray(trajectory, dtype=np.float64)
         if self._local is not None:
@@ -277,8 +276,7 @@ class ShardPool:
             for s, a, b in zip(shards, bounds[:-1], bounds[1:]):
                 if b > a:
                     tr = traj if traj.ndim == 2 else traj[a:b]
-                    st = start if start.ndim == 1 else start[a:b]
-                    ref = s.actor.simulate_batch.remote(st, sizes[a:b], action, tr, starts[a:b])
+                    ref = s.actor.simulate_batch.remote(start, sizes[a:b], action, tr, starts[a:b])
                     pending[ref] = (a, b, s)
 
         submit(0, len(sizes), list(self._shards))

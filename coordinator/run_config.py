@@ -161,10 +161,7 @@ class RunConfig(BaseModel):
     sensor_bias: float = Field(0.0, ge=-5, le=5)
     # The noise's shape: "student_t" is Student-t with 3 dof at the same std (heavy tails).
     sensor_tails: Literal["gaussian", "student_t"] = "gaussian"
-    # The std (m, per axis) of the perceived planar positions of the movable objects: the
-    # simulated reality perceives with it, and each particle world starts from its own draw
-    # of where the perceived objects truly are (coordinator/perception.py; a robot session
-    # declares its own).
+    # The std (m, per axis) of the perceived planar positions of the movable objects.
     perception_sigma: float = Field(0.002, ge=0, le=0.05)
     costs: Costs = Costs()
     shards: int | None = Field(None, ge=0, le=4096)

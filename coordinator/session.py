@@ -31,7 +31,6 @@ from .experience import ExperiencePool
 from .grounding_bandit import GroundingBandit
 from .particle_filter import Belief, ParticleFilter, RealStep, Reweighting
 from .particle_filter.belief import heaviest_class, mode_mask, symbolic_log_likelihood
-from .perception import perceived_trajectories
 from .reality import Observation
 from .real_pose import choose_pose, pose_candidates
 from .run_config import AGENT_STREAM, RunConfig, seed_stream, stored_run_config
@@ -271,7 +270,9 @@ class Session:
         def success(x: np.ndarray) -> np.ndarray:
             traj = self.domain.action_trajectory(config, action, x)
             t_pre = self.domain.transit_end_time(config, action, x)
-            res = self._simulate_rows(start, np.ascontiguousarray(view.particles), action, traj, t_pre)
+            t0 = time.perf_counter()
+            res = self.shard_pool.simulate(start, np.ascontiguousarray(view.particles), action, traj, t_pre)
+            self.stats.physics_s += time.perf_counter() - t0
             self.particle_actions += view.n
             self.particle_steps += int(res["steps"].sum())
             return np.array([s == expected for s in res["states"]], dtype=np.float64)
@@ -389,20 +390,22 @@ class Session:
         return report
 
     def _reweight(self, before: Observation, step: PendingStep, observation: Observation) -> dict:
+        t0 = time.perf_counter()
         # The wire carries rows of L (N, D); each shard expands a row with the domain.
         sizes = np.ascontiguousarray(self.belief.particles)
         start = before.configuration.to_array()
         if self.config.likelihood == "replay":
-            res = self._simulate_rows(start, sizes, step.action, step.trajectory, step.transit_end)
+            res = self.shard_pool.simulate(start, sizes, step.action, step.trajectory, step.transit_end)
         else:  # "paper": each particle runs its own trajectory to its own pose x_i
             trajs = np.array([self.domain.action_trajectory(before.configuration, step.action, xi)
                               for xi in step.particle_poses])
             t_pre = np.array([0.0 if step.unchecked_transit else
                               self.domain.transit_end_time(before.configuration, step.action, xi)
                               for xi in step.particle_poses])
-            res = self._simulate_rows(start, sizes, step.action, trajs, t_pre)
+            res = self.shard_pool.simulate(start, sizes, step.action, trajs, t_pre)
         if step.unchecked_transit:
             self.stats.replayed_fallback()
+        self.stats.physics_s += time.perf_counter() - t0
         self.particle_actions += len(sizes)
         self.particle_steps += int(res["steps"].sum())
         loglik = self._symbolic_loglik(step, observation.state, res["states"])
@@ -424,15 +427,10 @@ class Session:
         self.stats.count_update(update.informative, update.injected)
         return update.report()
 
-    def _simulate_rows(self, start: np.ndarray, rows: np.ndarray, action: str, trajectory: np.ndarray,
-                       start_time=0.0) -> dict:
-        """The particle worlds, one per row of L, each meeting the objects off by its own
-        draw of the perception error (``coordinator.perception``); the filter sees this
-        callable. Its time is physics."""
-        traj = perceived_trajectories(self.domain, self._props(self.believed_row()), start, action, trajectory,
-                                      len(rows), self.config.perception_sigma, self.rng)
+    def _simulate_rows(self, *args, **kwargs) -> dict:
+        """The particle worlds as the filter sees them (a callable; its time is physics)."""
         t0 = time.perf_counter()
-        out = self.shard_pool.simulate(start, rows, action, traj, start_time)
+        out = self.shard_pool.simulate(*args, **kwargs)
         self.stats.physics_s += time.perf_counter() - t0
         return out
 

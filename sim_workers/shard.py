@@ -48,9 +48,7 @@ class Shard:
                  start_time=0.0) -> dict:
         """Run `action` once per particle.
 
-        start:      (5 + 7M,) flat observed configuration (re-grounded per particle), or
-                    (B, 5 + 7M) one each (the coordinator's draws of where the perceived
-                    objects truly are, ``coordinator.perception``)
+        start:      (5 + 7M,) flat observed configuration (re-grounded per particle)
         sizes:      (B, D) rows of L, one per particle (the domain's ``props_from_row``
                     expands a row; for block domains D is 1, one size for every block,
                     or n_blocks)
@@ -59,12 +57,8 @@ class Shard:
         Returns arrays: configurations (B, 5 + 7M), states (B,) text, measurements (B, P),
         steps (B,).
         """
+        config = Configuration.from_array(start)
         sizes = np.atleast_2d(np.asarray(sizes, dtype=np.float64))
-        start = np.asarray(start, dtype=np.float64)
-        if start.ndim == 2 and start.shape[0] != len(sizes):
-            raise ValueError(f"start: {start.shape[0]} configurations for {len(sizes)} particles")
-        configs_in = ([Configuration.from_array(a) for a in start] if start.ndim == 2
-                      else [Configuration.from_array(start)] * len(sizes))
         traj = np.asarray(trajectory, dtype=np.float64)
         shared = traj.ndim == 2
         if not shared and traj.shape[0] != len(sizes):
@@ -73,7 +67,7 @@ class Shard:
         configs, states, meas, steps = [], [], [], []
         for b, row in enumerate(sizes):
             world = self.worlds[b % len(self.worlds)]
-            world.reset(configs_in[b], self._props(row))
+            world.reset(config, self._props(row))
             out = world.execute(traj if shared else traj[b], action, start_time=float(starts[b]))
             configs.append(out.configuration.to_array())
             states.append(encode_state(out.state))

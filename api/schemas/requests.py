@@ -217,10 +217,9 @@ def task_spec_model(max_particles: int, max_episodes: int, max_steps: int = 1000
 def session_create_model(max_particles: int, max_episodes: int, max_steps: int = 1000) -> Any:
     """An external-robot session: the learning settings plus, optionally, the first
     episode's initial observation. The truth (`true_size`) is the robot's world, not a field."""
-    # (the simulated reality's fields: a robot's sensors are its own; its perception noise,
-    # `perception_sigma`, it declares: the particle worlds marginalise it)
+    # (the simulated reality's fields: a robot's sensors are its own)
     fields = _spec_fields({"true_size", "known_properties", "reality_fail", "reality_engine",
-                           "sensor_noise", "sensor_bias", "sensor_tails"},
+                           "sensor_noise", "sensor_bias", "sensor_tails", "perception_sigma"},
                           max_particles, max_episodes,
                           max_steps)
     fields["reality"] = (Literal["external"], Field(

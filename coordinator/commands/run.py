@@ -75,8 +75,7 @@ def register(sub) -> None:
                    help=f"the sensor noise's shape; student_t: Student-t with 3 dof at the same std "
                         f"(default {d.sensor_tails})")
     p.add_argument("--perception-sigma", type=float, default=None, metavar="M",
-                   help=f"std (m) of the perceived planar object positions: the simulated reality "
-                        f"perceives with it and each particle world draws where the objects truly are; "
+                   help=f"std (m) of the simulated reality's perceived planar object positions; "
                         f"0: exact (default {d.perception_sigma:g})")
     p.add_argument("--shards", type=int, default=None, help="shard actors (default: one per CPU)")
     p.add_argument("--ray-address", default=None, help="join a running Ray cluster")
