@@ -1,4 +1,4 @@
-"""One loop, four agents: TMOC and its baselines are switches of the same code (DESIGN sec. 4)."""
+"""One loop, four agents: TMOC and its baselines are switches of the same code."""
 from __future__ import annotations
 
 from dataclasses import dataclass

@@ -44,7 +44,7 @@ class ContainerSpec:
     mu_container: float = 0.6       # container-table 0.30
     mu_block: float = 0.8           # block-table 0.40, block-block 0.64
     mu_finger: float = 1.5          # finger-block 1.20
-    # Physics: chosen by measurement (benchmarks/bench_worlds.py and DESIGN sec. 7).
+    # Physics: chosen by measurement (benchmarks/bench_worlds.py).
     time_step: float = 1.0 / 120.0
     # 50 iterations: at 20 a gripper landing on a block drives it into the table (the
     # fingers should stop on its top); at 1/60 s blocks sink into the table at any count.

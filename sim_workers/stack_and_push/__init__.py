@@ -1,4 +1,4 @@
-"""The stack-and-push domain (the paper's real-robot task, /work/shared/DOMAINS.md sec. 3):
+"""The stack-and-push domain (the paper's real-robot task; docs/BUILTIN_DOMAINS.md):
 stack cubes into a tower on a rail's start site, push the tower along the rail to the goal.
 """
 from __future__ import annotations

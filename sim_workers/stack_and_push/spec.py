@@ -1,5 +1,5 @@
 """The stack-and-push scene as data: rail, supply row, start site, goal area, gripper,
-physics settings (docs: /work/shared/DOMAINS.md section 3)."""
+physics settings (docs/BUILTIN_DOMAINS.md)."""
 from __future__ import annotations
 
 from dataclasses import dataclass

@@ -108,7 +108,7 @@ def _pushed(T: dict, h: int, c: dict) -> float:
 
 def _bellman(state: frozenset[str], T: dict, costs: dict = DEFAULT_COSTS) -> float:
     """Max expected utility over every action sequence to the goal, by exact recursion over
-    the symbolic model (each action's value as DESIGN section 3 defines it)."""
+    the symbolic model (each action's value as the task's utility defines it)."""
     c = costs
 
     @functools.lru_cache(maxsize=None)
