@@ -434,12 +434,6 @@ class Session:
         self.stats.physics_s += time.perf_counter() - t0
         return out
 
-    def _resample_move(self) -> int:
-        """The Metropolis-Hastings move the lock-in monitor asked for, if any (rows moved)."""
-        moved, spent = self.filter.move_if_due(self.rng, self._simulate_rows, self._symbolic_loglik)
-        self.particle_actions += spent
-        return moved
-
     def _predicted(self, step: PendingStep, observed: frozenset[str], res: dict, rows: np.ndarray):
         """The particles' predictions of this action, for its picture (copies; reads only)."""
         from .frames import Prediction

@@ -104,11 +104,8 @@ class ParticleFilter:
         return FilterUpdate(float(b.ess()), bool(resampled), n, weighed.information, weighed.explained,
                             injected + moved, next_n, weighed.informative, spent)
 
-    def move_if_due(self, rng: np.random.Generator, simulate: Simulate, symbolic: Symbolic) -> tuple[int, int]:
-        """The pending Metropolis-Hastings move, if any: (rows moved, particle-actions spent)."""
-        return self._move(rng, simulate, symbolic)
-
     def _move(self, rng: np.random.Generator, simulate: Simulate, symbolic: Symbolic) -> tuple[int, int]:
+        """The pending Metropolis-Hastings move, if any: (rows moved, particle-actions spent)."""
         dims = self.reweighting.pending_move
         if dims is None:
             return 0, 0
