@@ -279,6 +279,25 @@ def check_measurements(d: Domain) -> str:
     return f"{len(m)} values, {len(idx)} weighed"
 
 
+def check_misalignment(d: Domain) -> str:
+    """Where a domain names an action perception-sensitive (``misalignment``), the row is a
+    movable object (the one perception jitters) and the axis a planar unit vector: the
+    filter shifts that object's perceived position along it (docs/LOOP.md)."""
+    config = d.physics.initial_configuration(_truth(d))
+    named = 0
+    for _, action in _first_actions(d):
+        where = d.physics.misalignment(config, action)
+        if where is None:
+            continue
+        row, axis = where
+        axis = np.asarray(axis, dtype=np.float64)
+        assert int(row) in d.physics.jittered_objects, f"misalignment({action}): row {row} is not a movable object"
+        assert axis.shape == (2,) and abs(float(np.hypot(*axis)) - 1.0) < 1e-9, \
+            f"misalignment({action}): the axis is not a planar unit vector"
+        named += 1
+    return f"{named} of {len(_first_actions(d))} actions perception-sensitive"
+
+
 CHECKS: dict[str, Callable[[Domain], str]] = {
     "structure": check_structure,
     "spec": check_spec,
@@ -291,6 +310,7 @@ CHECKS: dict[str, Callable[[Domain], str]] = {
     "y_in_workspace": check_y,
     "y_batch": check_y_batch,
     "measurements": check_measurements,
+    "misalignment": check_misalignment,
 }
 
 

@@ -163,6 +163,11 @@ class RunConfig(BaseModel):
     sensor_tails: Literal["gaussian", "student_t"] = "gaussian"
     # The std (m, per axis) of the perceived planar positions of the movable objects.
     perception_sigma: float = Field(0.002, ge=0, le=0.05)
+    # Gauss-Hermite nodes over which the filter integrates each particle world's outcome
+    # of an action the domain declares perception-sensitive (``misalignment``), at
+    # perception_sigma (coordinator/particle_filter/perception.py); 1: the perceived pose
+    # alone (before issue 37's perception term). Odd, so the perceived pose is a node.
+    perception_nodes: Literal[1, 3, 5, 7] = 3
     costs: Costs = Costs()
     shards: int | None = Field(None, ge=0, le=4096)
     # The hidden truth by the names of L (`tmoc domains`), e.g. {"size": 0.04, "density":
@@ -325,14 +330,15 @@ def seed_stream(seed: int, stream: int) -> np.random.Generator:
 
 # What a stored config without the sensor fields ran with: the exact readings (issue 37).
 PRE_SENSOR_NOISE = {"sensor_noise": 0.0, "sensor_bias": 0.0, "sensor_tails": "gaussian",
-                    "perception_sigma": 0.0}
+                    "perception_sigma": 0.0, "perception_nodes": 1}
 
 # What a stored config without the filter fields ran with (the same numbers, bit for bit).
 # The filter of issue 24 as it ran before issue 37 (a power likelihood, the Musso kernel
 # without shrinkage and a 2 % floor, raw innovations, prior redraws, the heaviest mode's
 # pose): `tmoc run --config` with these reproduces it, and the benchmarks' "before".
 PRE_ISSUE_37_FILTER = {"ess_keep": 0.5, "resample_kernel": "rpf", "jitter_floor": 0.02,
-                       "model_error": "online", "recovery": "prior", "pose_rule": "mode"}
+                       "model_error": "online", "recovery": "prior", "pose_rule": "mode",
+                       "perception_nodes": 1}
 
 PRE_ISSUE_24_FILTER = {"outlier_rate": 0.0, "model_error": "none", "ess_keep": 0.0,
                        "resample_kernel": "jitter", "block_weights": False, "lock_in": False}

@@ -31,6 +31,7 @@ from .experience import ExperiencePool
 from .grounding_bandit import GroundingBandit
 from .particle_filter import Belief, ParticleFilter, RealStep, Reweighting
 from .particle_filter.belief import heaviest_class, mode_mask, symbolic_log_likelihood
+from .particle_filter.perception import gauss_hermite
 from .reality import Observation
 from .real_pose import choose_pose, pose_candidates
 from .run_config import AGENT_STREAM, RunConfig, seed_stream, stored_run_config
@@ -270,12 +271,13 @@ class Session:
         def success(x: np.ndarray) -> np.ndarray:
             traj = self.domain.action_trajectory(config, action, x)
             t_pre = self.domain.transit_end_time(config, action, x)
-            t0 = time.perf_counter()
-            res = self.shard_pool.simulate(start, np.ascontiguousarray(view.particles), action, traj, t_pre)
-            self.stats.physics_s += time.perf_counter() - t0
-            self.particle_actions += view.n
-            self.particle_steps += int(res["steps"].sum())
-            return np.array([s == expected for s in res["states"]], dtype=np.float64)
+            res = self._simulate_rows(start, np.ascontiguousarray(view.particles), action, traj, t_pre)
+            self.particle_actions += res["particle_actions"]
+            self.particle_steps += res["particle_steps"]
+            # Each world's chance of success over the perception error (its nodes), so a
+            # pose with clearance beats one that grasps only where perception is exact.
+            return sum(np.exp(lw) * np.array([s == expected for s in r["states"]], dtype=np.float64)
+                       for lw, r in res.get("perception") or [(0.0, res)])
 
         return choose_pose(cands, success, view.weights)
 
@@ -390,25 +392,25 @@ class Session:
         return report
 
     def _reweight(self, before: Observation, step: PendingStep, observation: Observation) -> dict:
-        t0 = time.perf_counter()
         # The wire carries rows of L (N, D); each shard expands a row with the domain.
         sizes = np.ascontiguousarray(self.belief.particles)
         start = before.configuration.to_array()
         if self.config.likelihood == "replay":
-            res = self.shard_pool.simulate(start, sizes, step.action, step.trajectory, step.transit_end)
+            res = self._simulate_rows(start, sizes, step.action, step.trajectory, step.transit_end)
         else:  # "paper": each particle runs its own trajectory to its own pose x_i
             trajs = np.array([self.domain.action_trajectory(before.configuration, step.action, xi)
                               for xi in step.particle_poses])
             t_pre = np.array([0.0 if step.unchecked_transit else
                               self.domain.transit_end_time(before.configuration, step.action, xi)
                               for xi in step.particle_poses])
-            res = self.shard_pool.simulate(start, sizes, step.action, trajs, t_pre)
+            res = self._simulate_rows(start, sizes, step.action, trajs, t_pre)
         if step.unchecked_transit:
             self.stats.replayed_fallback()
-        self.stats.physics_s += time.perf_counter() - t0
-        self.particle_actions += len(sizes)
-        self.particle_steps += int(res["steps"].sum())
+        self.particle_actions += res["particle_actions"]
+        self.particle_steps += res["particle_steps"]
         loglik = self._symbolic_loglik(step, observation.state, res["states"])
+        nodes = [(lw, self._symbolic_loglik(step, observation.state, r["states"]), r["measurements"])
+                 for lw, r in res["perception"]] if res.get("perception") else None
         if self.frames is not None:      # before the update: the weights that predicted
             self._prediction = self._predicted(step, observation.state, res, sizes)
         # Simulated experience counts each world by how plausible it was before this real
@@ -418,20 +420,62 @@ class Session:
         real = RealStep(start, step.action, step.trajectory, step.transit_end, step.expected,
                         observation.state, np.asarray(observation.measurements, dtype=np.float64))
         update = self.filter.update(real, loglik, res["measurements"], self.rng,
-                                    self._simulate_rows, self._symbolic_loglik)
+                                    self._simulate_rows, self._symbolic_loglik, nodes)
         self.particle_actions += update.simulated
         if self.agent.sim_experience:      # weighted by how plausible each is for this action
-            self.experience.add_simulated(before.state, step.action, res["states"], step.expected,
-                                          prior_weights)
+            parts = res.get("perception") or [(0.0, res)]     # and by each perception node's weight
+            self.experience.add_simulated(before.state, step.action,
+                                          [st for _, r in parts for st in r["states"]], step.expected,
+                                          np.concatenate([np.exp(lw) * prior_weights for lw, _ in parts]))
         self.stats.particle_counts.append(len(sizes))
         self.stats.count_update(update.informative, update.injected)
         return update.report()
 
-    def _simulate_rows(self, *args, **kwargs) -> dict:
-        """The particle worlds as the filter sees them (a callable; its time is physics)."""
+    def _simulate_rows(self, start: np.ndarray, rows: np.ndarray, action: str, trajectory, start_time) -> dict:
+        """The particle worlds as the filter sees them (a callable; its time is physics):
+        the shards' result at the perceived configuration `start`, with ``particle_actions``
+        and ``particle_steps`` spent and, where the domain declares the action sensitive to
+        perception (``misalignment``), ``perception``: (log weight, result) at each Gauss-Hermite
+        node of the perception error (``coordinator.particle_filter.perception``), the
+        perceived pose's own result among them."""
         t0 = time.perf_counter()
-        out = self.shard_pool.simulate(*args, **kwargs)
+        out = dict(self.shard_pool.simulate(start, rows, action, trajectory, start_time))
+        results = [out]
+        shifted = self._perception_nodes(start, action)
+        if shifted:
+            out["perception"] = []
+            for lw, node_start in shifted:
+                r = out if node_start is None else self.shard_pool.simulate(node_start, rows, action, trajectory,
+                                                                           start_time)
+                if node_start is not None:
+                    results.append(r)
+                out["perception"].append((lw, r))
         self.stats.physics_s += time.perf_counter() - t0
+        out["particle_actions"] = len(rows) * len(results)
+        out["particle_steps"] = int(sum(int(np.asarray(r["steps"]).sum()) for r in results))
+        return out
+
+    def _perception_nodes(self, start: np.ndarray, action: str) -> list[tuple[float, np.ndarray | None]]:
+        """(log weight, start) per quadrature node of the perception error along the
+        domain's ``misalignment`` axis, None for the perceived start itself; [] where the
+        action is not perception-sensitive or the run integrates nothing."""
+        n, sigma = self.config.perception_nodes, self.config.perception_sigma
+        if n <= 1 or sigma <= 0.0:
+            return []
+        where = self.domain.misalignment(Configuration.from_array(start), action)
+        if where is None:
+            return []
+        row, axis = where
+        x, log_w = gauss_hermite(n)
+        out = []
+        for xk, lw in zip(x.tolist(), log_w.tolist()):
+            if xk == 0.0:
+                out.append((lw, None))
+                continue
+            config = Configuration.from_array(start)
+            objects = config.objects.copy()
+            objects[row, :2] += xk * sigma * np.asarray(axis, dtype=np.float64)
+            out.append((lw, Configuration(config.robot, objects).to_array()))
         return out
 
     def _predicted(self, step: PendingStep, observed: frozenset[str], res: dict, rows: np.ndarray):

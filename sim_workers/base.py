@@ -166,6 +166,16 @@ class PhysicsDomain(abc.ABC):
         coordinator averages a pose within one class only; default: one class."""
         return np.zeros(len(rows), dtype=np.int64)
 
+    def misalignment(self, config: Configuration, action: str) -> tuple[int, np.ndarray] | None:
+        """Where an error in perception changes the action's outcome: the row of
+        ``config.objects`` whose perceived planar position the action is aimed at, and the
+        unit planar axis along which an error in it matters (a parallel gripper's closing
+        axis), or None (default: no action is that sensitive). The filter integrates the
+        particle worlds' outcomes over the perception error along that axis (issue 37;
+        docs/LOOP.md, "Perception in the likelihood"); an error across it must not change
+        the outcome."""
+        return None
+
     def held_object(self, state: frozenset[str]) -> str | None:
         """The object in the hand in symbolic state `state` (None: the hand is empty); the
         transit's collision check carries its box. Default: none is ever held."""

@@ -23,7 +23,7 @@ imports neither the worlds nor the planner, and the session owns neither its ari
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Callable
+from typing import Callable, Sequence
 
 import numpy as np
 
@@ -81,16 +81,20 @@ class ParticleFilter:
         return bool(self.config.known_properties)
 
     def update(self, step: RealStep, symbolic_ll: np.ndarray, simulated_measurements: np.ndarray,
-               rng: np.random.Generator, simulate: Simulate, symbolic: Symbolic) -> FilterUpdate:
+               rng: np.random.Generator, simulate: Simulate, symbolic: Symbolic,
+               nodes: Sequence[tuple[float, np.ndarray, np.ndarray]] | None = None) -> FilterUpdate:
         """One real step's whole update of the belief (steps 1-5 of the module's docstring).
 
         `symbolic_ll`: each row's log-likelihood of the observed symbolic outcome;
         `simulated_measurements`: each row's simulated measurement channels (N, C), against
         `step.measurements`. `simulate` and `symbolic` re-simulate and re-score the window
-        if a move is due; `rng` is the session's seeded generator (every draw here)."""
+        if a move is due; `rng` is the session's seeded generator (every draw here).
+        `nodes`: the worlds at each perception quadrature node, (log weight, symbolic
+        log-likelihood, measurements) each (``Reweighting.weigh``); `simulate`'s result
+        carries them as ``"perception"`` (log weight, result) for a move's window."""
         b, rw = self.belief, self.reweighting
         n = b.n
-        weighed = rw.weigh(b, step.action, symbolic_ll, step.measurements, simulated_measurements)
+        weighed = rw.weigh(b, step.action, symbolic_ll, step.measurements, simulated_measurements, nodes)
         self.recent.append(step)
         del self.recent[:-MOVE_WINDOW]
         resampled, injected = rw.resample(b, rng, step.action, rejuvenate=not self.frozen)
@@ -116,11 +120,22 @@ class ParticleFilter:
                            max(self.config.jitter_floor, 1e-6) * width[dims])
 
         def step_loglik(real: RealStep, res: dict) -> np.ndarray:
+            if res.get("perception"):
+                return self.reweighting.node_log_likelihood(
+                    [(lw, symbolic(real, real.observed, r["states"]), r["measurements"]) for lw, r in res["perception"]],
+                    real.measurements)
             sym = symbolic(real, real.observed, res["states"])
             return self.reweighting.log_likelihood(sym, real.measurements, res["measurements"])[0]
 
-        rows, moved = mh_move(b.particles, dims, b.low, b.high, scale, self.recent, simulate, step_loglik, rng)
-        spent = 2 * b.n * len(self.recent)
+        spent = 0
+
+        def counted(start, rows, *args, **kwargs) -> dict:
+            nonlocal spent
+            out = simulate(start, rows, *args, **kwargs)
+            spent += int(out.get("particle_actions", len(rows)))
+            return out
+
+        rows, moved = mh_move(b.particles, dims, b.low, b.high, scale, self.recent, counted, step_loglik, rng)
         b.particles = rows
         return moved, spent
 

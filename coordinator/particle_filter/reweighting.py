@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Sequence
 
 import numpy as np
 
@@ -30,6 +31,7 @@ from .block_weights import GroupWeights
 from .likelihood import (INFORMATIVE_NATS, OUTLIER_WIDTH_SIGMAS, ess_temper, normalised_evidence,
                          perfect_log_likelihood, robust_log_likelihood, update_information)
 from .model_error import BIAS_Z, ModelError
+from .perception import mixture_log_likelihood
 from .rejuvenation import EXPLAINED, LockInMonitor, action_blocks, inject_prior, regularise, rpf_bandwidth
 from ..run_config import RunConfig
 
@@ -153,13 +155,26 @@ class Reweighting:
             ll, perfect = ll + meas_ll, perfect + meas_perfect
         return ll, perfect
 
+    def node_log_likelihood(self, nodes: Sequence[tuple[float, np.ndarray, np.ndarray]],
+                            observed: np.ndarray) -> np.ndarray:
+        """Per-particle log-likelihood integrated over the perception error: nodes are
+        (log weight, symbolic log-likelihood, predicted measurements) per quadrature node
+        (``coordinator.particle_filter.perception``)."""
+        return mixture_log_likelihood([(lw, self.log_likelihood(sym, observed, pred)[0]) for lw, sym, pred in nodes])
+
     def weigh(self, belief: Belief, action: str, symbolic_ll: np.ndarray, observed: np.ndarray,
-              predicted: np.ndarray) -> UpdateOutcome:
+              predicted: np.ndarray,
+              nodes: Sequence[tuple[float, np.ndarray, np.ndarray]] | None = None) -> UpdateOutcome:
         """Bayes-update `belief` after `action` with the symbolic log-likelihood and the
-        weighed channels of `observed` (M,) against each particle's `predicted` (N, M)."""
+        weighed channels of `observed` (M,) against each particle's `predicted` (N, M).
+        With `nodes` (the worlds replayed at each perception quadrature node) the
+        likelihood is their mixture; `symbolic_ll` and `predicted` are the perceived
+        pose's, whose innovations the model error reads."""
         before = belief.log_weights.copy()
         view_before = self.action_view(belief, action)[0].copy()
         ll, perfect = self.log_likelihood(symbolic_ll, observed, predicted)
+        if nodes:
+            ll = self.node_log_likelihood(nodes, observed)
         self._evidence = normalised_evidence(view_before, ll, perfect)
         if self.config.use_measurements and self.channels.size:
             obs, pred = observed[self.channels], predicted[:, self.channels]

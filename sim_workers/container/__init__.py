@@ -7,6 +7,7 @@ import re
 import numpy as np
 
 from ..base import PhysicsDomain
+from ..blocks.hand import closing_axis
 from ..blocks.terms import held_block
 from ..configuration import Configuration
 from ..scene import SceneDescription
@@ -114,6 +115,16 @@ class ContainerDomain(PhysicsDomain):
         self.properties({"block_sizes": sizes.min(axis=0)})       # validation, as per row
         self.properties({"block_sizes": sizes.max(axis=0)})
         return state_mapping.action_poses(self.spec, sizes, config, action)
+
+    def misalignment(self, config: Configuration, action: str) -> tuple[int, np.ndarray] | None:
+        """A pickup is aimed at its block's perceived position: an error along the
+        fingers' closing axis decides whether they pass either side of it."""
+        name, args = state_mapping.parse_action(action)
+        if name != "pickup":
+            return None
+        i = state_mapping.block_index(self.spec, args[1])
+        row = 1 + i
+        return row, closing_axis(config.objects[row, 3:])
 
     def pose_classes(self, rows: np.ndarray, config: Configuration, action: str) -> np.ndarray:
         """The discrete choice Y makes for each row of L ((N, D) -> (N,) ints): for a stack

@@ -8,6 +8,7 @@ import dataclasses
 import numpy as np
 
 from ..base import PhysicsDomain
+from ..blocks.hand import closing_axis
 from ..blocks.terms import held_block
 from ..configuration import Configuration, Workspace
 from ..scene import SceneDescription
@@ -158,6 +159,15 @@ class StackAndPushDomain(PhysicsDomain):
         block = state_mapping.block_index(self.spec, args[1]) if name != "push" else None
         chain = state_mapping.block_labels(self.spec, config)[1] if name == "push" else []
         return np.append(key, efforts.effort(self.spec, p["block_masses"], name, block, chain))
+
+    def misalignment(self, config: Configuration, action: str) -> tuple[int, np.ndarray] | None:
+        """A pickup is aimed at its block's perceived position: an error along the
+        fingers' closing axis decides whether they pass either side of it."""
+        name, args = state_mapping.parse_action(action)
+        if name != "pickup":
+            return None
+        row = state_mapping.block_index(self.spec, args[1])
+        return row, closing_axis(config.objects[row, 3:])
 
     def action_poses(self, rows: np.ndarray, config: Configuration, action: str) -> np.ndarray:
         """Y for every row of L at once ((N, D) -> (N, 5), or (N, 6) with mass in Y), bit
