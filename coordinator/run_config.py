@@ -166,8 +166,9 @@ class RunConfig(BaseModel):
     # Gauss-Hermite nodes over which the filter integrates each particle world's outcome
     # of an action the domain declares perception-sensitive (``misalignment``), at
     # perception_sigma (coordinator/particle_filter/perception.py); 1: the perceived pose
-    # alone (before issue 37's perception term). Odd, so the perceived pose is a node.
-    perception_nodes: Literal[1, 3, 5, 7] = 3
+    # alone. Odd, so the perceived pose is a node. 1 by default: 3 removed the large end's
+    # first-grasp loop but did not improve utility or coverage over 13 runs (docs/LOOP.md).
+    perception_nodes: Literal[1, 3, 5, 7] = 1
     costs: Costs = Costs()
     shards: int | None = Field(None, ge=0, le=4096)
     # The hidden truth by the names of L (`tmoc domains`), e.g. {"size": 0.04, "density":
