@@ -40,3 +40,16 @@ def closing_axis(quat: np.ndarray) -> np.ndarray:
     block gripped at 0.45 mm clearance holds at +-3.5 mm across, fails beyond +-2 mm along)."""
     yaw = grasp_yaw(quat)
     return np.array([-np.sin(yaw), np.cos(yaw)])
+
+
+def pickup_misalignment(spec, config: Configuration, action: str, first_block_row: int):
+    """The block domains' ``misalignment``: a pickup is aimed at its block's perceived
+    position (row ``first_block_row`` + its index), and an error along the fingers'
+    closing axis decides whether they pass either side of it; other actions: None."""
+    from .terms import block_index, parse_action
+
+    name, args = parse_action(action)
+    if name != "pickup":
+        return None
+    row = first_block_row + block_index(spec, args[1])
+    return row, closing_axis(config.objects[row, 3:])

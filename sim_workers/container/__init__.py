@@ -7,7 +7,7 @@ import re
 import numpy as np
 
 from ..base import PhysicsDomain
-from ..blocks.hand import closing_axis
+from ..blocks.hand import pickup_misalignment
 from ..blocks.terms import held_block
 from ..configuration import Configuration
 from ..scene import SceneDescription
@@ -117,14 +117,8 @@ class ContainerDomain(PhysicsDomain):
         return state_mapping.action_poses(self.spec, sizes, config, action)
 
     def misalignment(self, config: Configuration, action: str) -> tuple[int, np.ndarray] | None:
-        """A pickup is aimed at its block's perceived position: an error along the
-        fingers' closing axis decides whether they pass either side of it."""
-        name, args = state_mapping.parse_action(action)
-        if name != "pickup":
-            return None
-        i = state_mapping.block_index(self.spec, args[1])
-        row = 1 + i
-        return row, closing_axis(config.objects[row, 3:])
+        """A pickup's block and the fingers' closing axis (``blocks.hand.pickup_misalignment``)."""
+        return pickup_misalignment(self.spec, config, action, 1)
 
     def pose_classes(self, rows: np.ndarray, config: Configuration, action: str) -> np.ndarray:
         """The discrete choice Y makes for each row of L ((N, D) -> (N,) ints): for a stack

@@ -8,7 +8,7 @@ import dataclasses
 import numpy as np
 
 from ..base import PhysicsDomain
-from ..blocks.hand import closing_axis
+from ..blocks.hand import pickup_misalignment
 from ..blocks.terms import held_block
 from ..configuration import Configuration, Workspace
 from ..scene import SceneDescription
@@ -161,13 +161,8 @@ class StackAndPushDomain(PhysicsDomain):
         return np.append(key, efforts.effort(self.spec, p["block_masses"], name, block, chain))
 
     def misalignment(self, config: Configuration, action: str) -> tuple[int, np.ndarray] | None:
-        """A pickup is aimed at its block's perceived position: an error along the
-        fingers' closing axis decides whether they pass either side of it."""
-        name, args = state_mapping.parse_action(action)
-        if name != "pickup":
-            return None
-        row = state_mapping.block_index(self.spec, args[1])
-        return row, closing_axis(config.objects[row, 3:])
+        """A pickup's block and the fingers' closing axis (``blocks.hand.pickup_misalignment``)."""
+        return pickup_misalignment(self.spec, config, action, 0)
 
     def action_poses(self, rows: np.ndarray, config: Configuration, action: str) -> np.ndarray:
         """Y for every row of L at once ((N, D) -> (N, 5), or (N, 6) with mass in Y), bit
