@@ -12,6 +12,7 @@ in ``api.deps`` (read from ``app.state``), error shaping in ``api.errors``, midd
 from __future__ import annotations
 
 import asyncio
+import logging
 import signal
 import threading
 from contextlib import asynccontextmanager
@@ -22,7 +23,7 @@ from starlette.concurrency import run_in_threadpool
 from coordinator.shard_pools import ShardPools
 
 from . import schemas as S
-from .auth import CookieSessions
+from .auth import CookieSessions, LoginThrottle
 from .deps import require_token
 from .errors import add_exception_handlers, error_responses
 from .middleware import add_middlewares
@@ -32,6 +33,8 @@ from .sessions import SessionManager
 from .settings import Settings
 from .store import Store
 from .task_worker import TaskWorker
+
+log = logging.getLogger("tmoc.api")
 
 DESCRIPTION = ("Submit TMOC tasks, watch them learn (Server-Sent Events, belief, learning curve) "
                "and drive an external robot step by step. With TMOC_API_TOKEN set, every route "
@@ -64,6 +67,23 @@ def _signal_restorer():
     return restore
 
 
+PRUNE_EVERY_S = 3600.0       # how often `--retain-days` looks for runs past their time
+
+
+def _prune_forever(store: Store, retain_days: float, stopping: threading.Event) -> None:
+    """`tmoc serve --retain-days`: at start-up and then hourly, purge the finished tasks
+    and closed or finished sessions last changed more than `retain_days` ago (issue 38)."""
+    while not stopping.is_set():
+        try:
+            pruned = store.prune(retain_days * 86400.0)
+            if any(pruned.values()):
+                log.info("retention: purged %d tasks and %d sessions older than %g days",
+                         pruned["tasks"], pruned["sessions"], retain_days)
+        except Exception:  # noqa: BLE001 - storage trouble: try again at the next round
+            log.exception("retention: pruning failed")
+        stopping.wait(PRUNE_EVERY_S)
+
+
 @asynccontextmanager
 async def lifespan(app: FastAPI):
     """Open the store, start the task worker; at the end stop it, close the pools and Ray."""
@@ -85,6 +105,9 @@ async def lifespan(app: FastAPI):
     stop_restore = threading.Event()
     threading.Thread(target=st.sessions.restore, args=(stop_restore,), name="tmoc-session-restore",
                      daemon=True).start()
+    if st.settings.retain_days is not None:
+        threading.Thread(target=_prune_forever, args=(st.store, st.settings.retain_days, stop_restore),
+                         name="tmoc-retention", daemon=True).start()
     try:
         yield
     finally:
@@ -104,6 +127,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.state.notifier = Notifier()
     app.state.shard_pools = ShardPools(settings.ray_address, settings.n_shards)
     app.state.cookie_sessions = CookieSessions()
+    app.state.login_throttle = LoginThrottle()
     add_middlewares(app, settings, app.state.cookie_sessions)
     if settings.allowed_hosts is not None:
         from starlette.middleware.trustedhost import TrustedHostMiddleware

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import hmac
 import json
+import math
 import secrets
 import threading
 import time
@@ -93,19 +94,40 @@ async def send_json(send, status: int, payload: dict, headers: list | None = Non
     await send({"type": "http.response.body", "body": body})
 
 
+def client_address(scope) -> str:
+    """The address a request came from, as the server saw it (a proxy's header counts only
+    where `tmoc serve --forwarded-allow-ips` trusts that proxy: uvicorn rewrites it)."""
+    client = scope.get("client")
+    return str(client[0]) if client else ""
+
+
 class TokenGate:
     """With a token set: 401 for every path but the open ones unless the request carries
     the token (bearer) or a signed-in session's cookie, before anything else (the body
-    included) is read or parsed."""
+    included) is read or parsed. A wrong bearer token counts as a failed sign-in of its
+    address (`throttle`, shared with ``POST /ui/login``), and an address over the limit is
+    refused (429) whatever it sends until its failures age out (issue 38: 1000 wrong tokens
+    went through in 1.1 s as `Authorization`, bypassing the sign-in page's throttle)."""
 
-    def __init__(self, app, token: str, sessions: CookieSessions | None = None) -> None:
+    def __init__(self, app, token: str, sessions: CookieSessions | None = None,
+                 throttle: "LoginThrottle | None" = None) -> None:
         self.app, self.token = app, token.encode()
         self.sessions = sessions if sessions is not None else CookieSessions()
+        self.throttle = throttle if throttle is not None else LoginThrottle()
 
     async def __call__(self, scope, receive, send):
         if scope["type"] != "http" or is_open(scope["path"]):
             return await self.app(scope, receive, send)
-        if not authorised(dict(scope.get("headers", ())), self.token, self.sessions):
+        headers = dict(scope.get("headers", ()))
+        address, now = client_address(scope), time.monotonic()
+        wait = self.throttle.retry_after(address, now)
+        if wait is not None:
+            return await send_json(send, 429, {"detail": "too many failed sign-ins from this address: "
+                                                         "wait and retry"},
+                                   [(b"retry-after", str(max(1, math.ceil(wait))).encode())])
+        if not authorised(headers, self.token, self.sessions):
+            if headers.get(b"authorization"):          # a guess, not a missing credential
+                self.throttle.failed(address, now)
             return await send_json(send, 401, {"detail": "missing or invalid token: send Authorization: "
                                                          "Bearer <token>, or sign in at /ui"},
                                    [(b"www-authenticate", b"Bearer")])
@@ -113,10 +135,14 @@ class TokenGate:
 
 
 class LoginThrottle:
-    """Failed sign-ins per client address in a sliding window: at most `per_address`
-    (and `in_all` over every address) per `window_s`, then 429 until the oldest ages out
-    (issue 25: 2000 wrong tokens went through at 736 a second). Memory is bounded: at most
-    `max_addresses` addresses are remembered (the stalest forgotten first)."""
+    """Failed sign-ins (a wrong token at ``/ui/login`` or as a bearer) per client address in
+    a sliding window: at most `per_address` per `window_s`, then 429 for that address until
+    its oldest failure ages out (issue 25: 2000 wrong tokens went through at 736 a second).
+    Past `in_all` failures over every address in the window, an address that has failed in
+    it waits too, but one that has not is never refused: guessers from many addresses slow
+    down, and nobody else is locked out (issue 38: 100 failures a minute from anywhere
+    locked everyone out, the right token included). Memory is bounded: at most
+    `max_addresses` addresses are remembered (the stalest forgotten first). Thread-safe."""
 
     def __init__(self, per_address: int = 10, in_all: int = 100, window_s: float = 60.0,
                  max_addresses: int = 4096) -> None:
@@ -124,21 +150,33 @@ class LoginThrottle:
         self.max_addresses = max_addresses
         self._fails: dict[str, list[float]] = {}
         self._all: list[float] = []
+        self._lock = threading.Lock()
 
     def _trim(self, times: list[float], now: float) -> list[float]:
         return [t for t in times if now - t < self.window_s]
 
     def retry_after(self, address: str, now: float) -> float | None:
         """Seconds until `address` may try again (None: it may now)."""
-        self._all = self._trim(self._all, now)
-        mine = self._fails[address] = self._trim(self._fails.get(address, []), now)
-        waits = [self.window_s - (now - ts[0]) for ts, cap in ((mine, self.per_address), (self._all, self.in_all))
-                 if len(ts) >= cap]
-        return max(waits) if waits else None
+        with self._lock:
+            self._all = self._trim(self._all, now)
+            mine = self._trim(self._fails.get(address, []), now)
+            if mine:
+                self._fails[address] = mine
+            else:
+                self._fails.pop(address, None)
+            waits = []
+            if len(mine) >= self.per_address:
+                waits.append(self.window_s - (now - mine[0]))
+            if mine and len(self._all) >= self.in_all:
+                waits.append(self.window_s - (now - self._all[0]))
+            return max(waits) if waits else None
 
     def failed(self, address: str, now: float) -> None:
-        self._fails.setdefault(address, []).append(now)
-        self._all.append(now)
-        if len(self._fails) > self.max_addresses:
-            stalest = min(self._fails, key=lambda a: self._fails[a][-1] if self._fails[a] else 0.0)
-            self._fails.pop(stalest, None)
+        with self._lock:
+            self._fails.setdefault(address, []).append(now)
+            self._all.append(now)
+            if len(self._all) > 4 * self.in_all:
+                del self._all[:-4 * self.in_all]          # bounded; only the count over in_all matters
+            if len(self._fails) > self.max_addresses:
+                stalest = min(self._fails, key=lambda a: self._fails[a][-1] if self._fails[a] else 0.0)
+                self._fails.pop(stalest, None)

@@ -89,6 +89,17 @@ def refuse_invalid_config(spec: dict) -> None:
         raise RequestValidationError([{"loc": ["body", *field], "msg": msg, "type": err.get("type", "value_error")}]) from None
 
 
+def refuse_unstorable(spec: dict, max_stored_steps: int) -> None:
+    """A 422 naming `episodes` when episodes x max_steps exceeds what this server stores
+    for one task or session (`--max-stored-steps`; issue 38: one session of the allowed
+    size could store ~2.9 GB that nothing reclaimed)."""
+    episodes, steps = int(spec.get("episodes", 1)), int(spec.get("max_steps", 1))
+    if episodes * steps > max_stored_steps:
+        msg = (f"episodes x max_steps = {episodes} x {steps} = {episodes * steps} steps is over this "
+               f"server's limit of {max_stored_steps} stored steps (--max-stored-steps)")
+        raise RequestValidationError([{"loc": ["body", "episodes"], "msg": msg, "type": "value_error"}])
+
+
 def unprocessable(settings: Settings, loc: list, msg: str, typ: str = "value_error") -> JSONResponse:
     """A 422 shaped like a validation error, for a check made inside a route."""
     return JSONResponse(validation_body([{"loc": loc, "msg": msg, "type": typ}], settings), 422)
@@ -124,7 +135,11 @@ async def _storage(request: Request, exc: sqlite3.Error) -> JSONResponse:
 
 async def _internal(request: Request, exc: Exception) -> JSONResponse:  # pragma: no cover - a bug
     log.exception("internal error on %s %s", request.method, request.url.path)
-    return JSONResponse({"detail": f"internal error: {type(exc).__name__}"}, 500)
+    # Connection: close, so a keep-alive client does not send its next request down the
+    # connection uvicorn closes after a server error (issue 38: one 500 became a
+    # "connection reset" on the client's next, unrelated request).
+    return JSONResponse({"detail": f"internal error: {type(exc).__name__}"}, 500,
+                        headers={"Connection": "close"})
 
 
 def add_exception_handlers(app: FastAPI) -> None:
@@ -136,5 +151,5 @@ def add_exception_handlers(app: FastAPI) -> None:
     app.add_exception_handler(Exception, _internal)
 
 
-__all__ = ["MAX_ERRORS", "add_exception_handlers", "error_responses", "refuse_invalid_config",
+__all__ = ["MAX_ERRORS", "add_exception_handlers", "error_responses", "refuse_invalid_config", "refuse_unstorable",
            "unprocessable", "validation_body"]

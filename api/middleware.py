@@ -141,7 +141,9 @@ def add_middlewares(app: FastAPI, settings: Settings, cookie_sessions: CookieSes
     app.add_middleware(BodyLimit, limit=settings.max_body_bytes)
     app.add_middleware(AllowHeader, fastapi_app=app)
     if settings.token:
-        app.add_middleware(TokenGate, token=settings.token, sessions=cookie_sessions)
+        # One throttle for bearer guesses and sign-ins (app.state.login_throttle).
+        app.add_middleware(TokenGate, token=settings.token, sessions=cookie_sessions,
+                           throttle=getattr(app.state, "login_throttle", None))
 
 
 __all__ = ["AllowHeader", "BodyLimit", "add_middlewares"]

@@ -396,6 +396,15 @@ class SessionManager:
             return status
 
 
+    def purge(self, session_id: str) -> tuple[str, dict[str, int]] | None:
+        """Delete a closed or finished session's stored rows and forget it (``Store.purge_session``)."""
+        with self._lock_for(session_id):
+            out = self.store.purge_session(session_id)
+            if out is not None and out[1]:
+                self._live.pop(session_id, None)
+            return out
+
+
 def _jsonable(value):
     """Plain JSON types (numpy scalars/arrays and tuples converted)."""
     if isinstance(value, dict):

@@ -36,6 +36,12 @@ class Settings:
     # Open event streams, per task and in all (then 429): each holds a descriptor.
     max_streams_per_task: int = 16
     max_streams: int = 256
+    # Finished tasks and closed or finished sessions last changed longer ago than this are
+    # purged at start-up and hourly (None: kept for ever).
+    retain_days: float | None = None
+    # episodes x max_steps a task or session may ask for at most: the step records it can
+    # store (~1.4 KB a step; 100000 steps ~140 MB).
+    max_stored_steps: int = 100_000
 
 
 __all__ = ["Settings"]

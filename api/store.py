@@ -12,6 +12,7 @@ serialised by a process-wide lock and run as ``BEGIN IMMEDIATE`` transactions.
 from __future__ import annotations
 
 import json
+import logging
 import sqlite3
 import threading
 import time
@@ -22,6 +23,8 @@ from pathlib import Path
 from typing import Any, Iterator
 
 from .database import create_schema
+
+_log = logging.getLogger("tmoc.api")
 
 TERMINAL = ("succeeded", "failed", "cancelled")
 
@@ -42,6 +45,27 @@ def _step_row(run_id: str, record: dict) -> tuple:
 
 def _dumps(value: Any) -> str | None:
     return None if value is None else json.dumps(value, separators=(",", ":"), allow_nan=False)
+
+
+def _listed(row: sqlite3.Row, json_cols: tuple[str, ...]) -> dict | None:
+    """A list's row, or None where a stored JSON column is corrupt (the list leaves it out:
+    ``api.views.shown``; issue 38: one bad `pending` made the whole session list a 500)."""
+    try:
+        return _row(row, json_cols)
+    except ValueError:
+        return None
+
+
+def _episode_text(run_id: str, episode: int, text: str) -> str:
+    """A stored episode record's JSON text, or a small valid stand-in naming the episode
+    where the stored text is not JSON (issue 38: one bad row made `GET .../episodes` a 200
+    with invalid JSON and an SSE `data: {`)."""
+    try:
+        json.loads(text)
+        return text
+    except (ValueError, TypeError):
+        _log.error("episode %s of %s: the stored record is not valid JSON", episode, run_id)
+        return json.dumps({"episode": episode, "corrupt": "the stored record is not valid JSON"})
 
 
 def _row(row: sqlite3.Row | None, json_cols: tuple[str, ...], skip: tuple[str, ...] = ()) -> dict | None:
@@ -202,7 +226,7 @@ class Store:
             rows = self._all(f"SELECT {cols} FROM tasks ORDER BY seq DESC LIMIT ? OFFSET ?",
                              (limit, offset))
             total = self._one("SELECT COUNT(*) FROM tasks")[0]
-        return [_row(r, _TASK_JSON) for r in rows], total
+        return [_listed(r, _TASK_JSON) for r in rows], total
 
     def count_tasks(self, status: str) -> int:
         return self._one("SELECT COUNT(*) FROM tasks WHERE status = ?", (status,))[0]
@@ -300,7 +324,7 @@ class Store:
         if limit is not None:
             sql += " LIMIT ?"
             args += (limit,)
-        return [(r[0], r[1]) for r in self._all(sql, args)]
+        return [(r[0], _episode_text(run_id, r[0], r[1])) for r in self._all(sql, args)]
 
     # -- frames --------------------------------------------------------------------------
     def add_frame(self, run_id: str, name: str, png: bytes, meta: dict, max_frames: int) -> None:
@@ -357,7 +381,7 @@ class Store:
                          "step, pending, posterior, latest, last_reply FROM sessions ORDER BY seq DESC LIMIT ? OFFSET ?",
                          (limit, offset))
         total = self._one("SELECT COUNT(*) FROM sessions")[0]
-        return [_row(r, _SESSION_JSON) for r in rows], total
+        return [_listed(r, _SESSION_JSON) for r in rows], total
 
     def sessions_to_restore(self, idle_s: float = float("inf")) -> list[str]:
         """Active sessions in the middle of an episode and changed within the last `idle_s`
@@ -407,6 +431,11 @@ class Store:
                 db.execute("INSERT INTO episodes (run_id, episode, record, created_at) VALUES (?, ?, ?, ?) "
                            "ON CONFLICT (run_id, episode) DO NOTHING",
                            (session_id, episode, _dumps(finished), now))
+                # The episode's observations rebuild it only while it runs (with the
+                # checkpoint before it); once its record and the new checkpoint are stored
+                # they are dead weight (issue 38: ~1.5 KB a step, kept for ever).
+                db.execute("DELETE FROM session_steps WHERE session_id = ? AND episode <= ?",
+                           (session_id, episode))
                 db.execute("UPDATE sessions SET checkpoint = ?, episode_start = NULL, in_episode = 0, "
                            "episodes_done = episodes_done + 1, latest = ?, status = ?, step = ?, "
                            "pending = NULL, posterior = ?, belief = COALESCE(?, belief), updated_at = ? "
@@ -430,6 +459,58 @@ class Store:
             db.execute("UPDATE sessions SET status = 'closed', pending = NULL, updated_at = ? WHERE id = ?",
                        (time.time(), session_id))
             return "closed"
+
+
+    # -- retention (issue 38) ------------------------------------------------------------
+    def purge_task(self, task_id: str) -> tuple[str, dict[str, int]] | None:
+        """Delete a finished task's stored rows (the task, its episodes, step records and
+        frames) in one short transaction. (status, rows deleted per table); the counts are
+        empty when the task has not finished (it is left as it is); None: no such task."""
+        with self._write() as db:
+            row = db.execute("SELECT status FROM tasks WHERE id = ?", (task_id,)).fetchone()
+            if row is None:
+                return None
+            if row[0] not in TERMINAL:
+                return row[0], {}
+            return row[0], self._delete_run(db, task_id, "tasks")
+
+    def purge_session(self, session_id: str) -> tuple[str, dict[str, int]] | None:
+        """Delete a closed or finished session's stored rows (the session, its episodes,
+        step records and observations). As `purge_task`: empty counts while it is active."""
+        with self._write() as db:
+            row = db.execute("SELECT status FROM sessions WHERE id = ?", (session_id,)).fetchone()
+            if row is None:
+                return None
+            if row[0] == "active":
+                return row[0], {}
+            return row[0], self._delete_run(db, session_id, "sessions")
+
+    @staticmethod
+    def _delete_run(db: sqlite3.Connection, run_id: str, table: str) -> dict[str, int]:
+        counts = {}
+        for name, sql in (("episodes", "DELETE FROM episodes WHERE run_id = ?"),
+                          ("steps", "DELETE FROM steps WHERE run_id = ?"),
+                          ("frames", "DELETE FROM frames WHERE run_id = ?"),
+                          ("session_steps", "DELETE FROM session_steps WHERE session_id = ?"),
+                          (table, f"DELETE FROM {table} WHERE id = ?")):
+            counts[name] = db.execute(sql, (run_id,)).rowcount
+        return counts
+
+    def prune(self, older_than_s: float, now: float | None = None) -> dict[str, int]:
+        """Purge every finished task and every closed or finished session last changed more
+        than `older_than_s` seconds ago (`tmoc serve --retain-days`), one run per
+        transaction so that other writers wait at most one run's delete. Runs purged."""
+        cutoff = (time.time() if now is None else now) - older_than_s
+        marks = ", ".join("?" * len(TERMINAL))
+        tasks = [r[0] for r in self._all(f"SELECT id FROM tasks WHERE status IN ({marks}) AND updated_at < ?",
+                                         (*TERMINAL, cutoff))]
+        sessions = [r[0] for r in self._all("SELECT id FROM sessions WHERE status != 'active' AND updated_at < ?",
+                                            (cutoff,))]
+        for t in tasks:
+            self.purge_task(t)
+        for s in sessions:
+            self.purge_session(s)
+        return {"tasks": len(tasks), "sessions": len(sessions)}
 
 
 def new_id(prefix: str) -> str:

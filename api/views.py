@@ -4,22 +4,47 @@ beliefs with links), and the pictures made on request (the learning curve PNG, t
 from __future__ import annotations
 
 import io
+import logging
 import threading
+from typing import Callable
 
 from . import schemas as S
 
+_log = logging.getLogger("tmoc.api")
 
-def page(items: list, total: int, limit: int, offset: int) -> dict:
-    """A list endpoint's envelope; next_offset is None on the last page."""
-    nxt = offset + len(items) if offset + len(items) < total else None
-    return {"items": items, "total": total, "limit": limit, "offset": offset, "next_offset": nxt}
+
+def page(items: list, total: int, limit: int, offset: int, skipped: int = 0) -> dict:
+    """A list endpoint's envelope; next_offset is None on the last page. `skipped`: rows of
+    this page left out because their stored data is corrupt (``shown``)."""
+    seen = len(items) + skipped
+    nxt = offset + seen if offset + seen < total else None
+    out = {"items": items, "total": total, "limit": limit, "offset": offset, "next_offset": nxt}
+    if skipped:
+        out["skipped"] = skipped
+    return out
+
+
+def shown(rows: list, view: Callable[[dict], dict], model: type) -> tuple[list[dict], int]:
+    """Each row's view, validated as the list's item `model`; a row whose stored data is
+    corrupt (None from the store, or a view that fails or does not validate) is left out
+    and logged, so one bad row fails itself alone, not the whole list (issue 38)."""
+    items, skipped = [], 0
+    for row in rows:
+        try:
+            if row is None:
+                raise ValueError("a stored column is not valid JSON")
+            items.append(model.model_validate(view(row)).model_dump(mode="json"))
+        except Exception as exc:  # noqa: BLE001 - one corrupt row must not fail the list
+            skipped += 1
+            _log.error("list: a stored row is corrupt and left out (%s: %s)", type(exc).__name__, exc)
+    return items, skipped
 
 
 def task_links(task_id: str) -> dict[str, str]:
     base = f"/v1/tasks/{task_id}"
     return {"self": base, "events": f"{base}/events", "episodes": f"{base}/episodes",
             "belief": f"{base}/belief", "curve": f"{base}/curve", "curve_png": f"{base}/curve.png",
-            "frames": f"{base}/frames", "transition": f"{base}/transition"}
+            "frames": f"{base}/frames", "transition": f"{base}/transition", "export": f"{base}/export"}
 
 
 def task_nodes(row: dict, live: list[dict] | None = None) -> list[dict] | None:
@@ -49,7 +74,8 @@ def task_view(row: dict, live_nodes: list[dict] | None = None) -> dict:
 def session_links(session_id: str) -> dict[str, str]:
     base = f"/v1/sessions/{session_id}"
     return {"self": base, "next": f"{base}/next", "observations": f"{base}/observations",
-            "episodes": f"{base}/episodes", "belief": f"{base}/belief", "curve": f"{base}/curve"}
+            "episodes": f"{base}/episodes", "belief": f"{base}/belief", "curve": f"{base}/curve",
+            "export": f"{base}/export"}
 
 
 def session_view(row: dict) -> dict:
@@ -79,7 +105,7 @@ def curve_points(records: list[dict]) -> list[dict]:
              "size_mean": r["posterior"]["size_mean"], "size_std": r["posterior"]["size_std"],
              "actions": r["actions"], "delivered": r["delivered"], "loads": r["loads"],
              "properties": r["posterior"].get("properties")}
-            for r in records]
+            for r in records if "corrupt" not in r]       # a corrupt stored record: no point
 
 
 _plot_lock = threading.Lock()

@@ -14,7 +14,13 @@ and a prober reads `/health` every 0.1 s:
 - row 3: 4 MiB bodies of nested containers at `POST /ui/login` without credentials;
 - row 4: 16-block tasks with a 3 s budget, and the same cancelled after 2 s;
 - row 7: one-block tasks; row 9: 24 event streams on one task (16 allowed);
-- row 12: wrong tokens at `POST /ui/login`; row 14: text/plain bodies, trailing periods.
+- row 12: wrong tokens at `POST /ui/login`; row 14: text/plain bodies, trailing periods;
+- issue 38: wrong bearer tokens as fast as they are answered, a corrupt session row written
+  into the database (the session list must stay 200, leaving it out), and the server
+  started with three broken domain plugins installed (`GET /v1/domains` lists them).
+
+The guessers (rows 12 and 38) connect from other loopback addresses (127.0.0.7, .8): the
+throttle refuses a guessing address, and the normal clients' 127.0.0.1 must go on.
 
 Prints `/health`'s p50/p99/max, what every hostile kind got (status codes), and whether
 each run of the normal task and session had the same results as alone (timings aside).
@@ -87,8 +93,8 @@ def run_session(c: TMOCClient, session_ids: list[str]) -> dict:
 class Hostile:
     """The hostile clients: one thread per kind, each at a bounded rate."""
 
-    def __init__(self, base: str, stop: threading.Event, session_ids: list[str]) -> None:
-        self.base, self.stop, self.session_ids = base, stop, session_ids
+    def __init__(self, base: str, stop: threading.Event, session_ids: list[str], db: str) -> None:
+        self.base, self.stop, self.session_ids, self.db = base, stop, session_ids, db
         self.codes: dict[str, collections.Counter] = collections.defaultdict(collections.Counter)
         self.auth = {"Authorization": f"Bearer {TOKEN}"}
         robot = SimulatedReality("container", {"n_blocks": 8}, {"block_sizes": np.full(8, 0.045)})
@@ -97,8 +103,9 @@ class Hostile:
         finally:
             robot.close()
 
-    def _loop(self, kind: str, every_s: float, fn) -> None:
-        with httpx.Client(base_url=self.base, timeout=60) as c:
+    def _loop(self, kind: str, every_s: float, fn, address: str | None = None) -> None:
+        transport = httpx.HTTPTransport(local_address=address) if address else None
+        with httpx.Client(base_url=self.base, timeout=60, transport=transport) as c:
             while not self.stop.is_set():
                 try:
                     for code in fn(c):
@@ -170,6 +177,26 @@ class Hostile:
         for _ in range(5):
             yield c.post("/ui/login", json={"token": "wrong"}).status_code
 
+    def bearer_guess(self, c):
+        for k in range(20):
+            yield c.get("/v1/tasks", headers={"Authorization": f"Bearer guess-{k}"}).status_code
+
+    def corrupt_row(self, c):
+        import sqlite3
+
+        sid = f"s_corrupt{time.monotonic_ns()}"
+        with sqlite3.connect(self.db, timeout=30) as raw:
+            raw.execute("INSERT INTO sessions (id, spec, status, created_at, updated_at, checkpoint, pending) "
+                        "VALUES (?, '{}', 'closed', ?, ?, '{}', '{')", (sid, time.time(), time.time()))
+        r = c.get("/v1/sessions", headers=self.auth, params={"limit": 200})
+        yield r.status_code
+        yield "skipped" if r.status_code == 200 and r.json().get("skipped") else "not skipped"
+
+    def broken_plugins(self, c):
+        r = c.get("/v1/domains", headers=self.auth)
+        yield r.status_code
+        yield "listed" if r.status_code == 200 and len(r.json().get("broken", {})) == 3 else "not listed"
+
     def careless(self, c):
         yield c.post("/v1/tasks", content=b"hello", headers={**self.auth, "content-type": "text/plain"}).status_code
         yield c.post("/v1/tasks", content=b"{not json", headers={**self.auth,
@@ -181,11 +208,33 @@ class Hostile:
         kinds = [("row 1 huge block", 1.0, self.huge_block), ("row 2 busy session", 2.0, self.busy_session),
                  ("row 3 nested body", 2.0, self.nested_body), ("row 4 long task", 10.0, self.long_tasks),
                  ("row 7 one block", 20.0, self.one_block), ("row 9 streams", 5.0, self.streams),
-                 ("row 12 wrong token", 1.0, self.wrong_tokens), ("row 14 careless", 0.5, self.careless)]
+                 ("row 12 wrong token", 1.0, self.wrong_tokens, "127.0.0.7"),
+                 ("row 14 careless", 0.5, self.careless),
+                 ("38 bearer guess", 0.05, self.bearer_guess, "127.0.0.8"),
+                 ("38 corrupt row", 30.0, self.corrupt_row), ("38 broken plugins", 10.0, self.broken_plugins)]
         threads = [threading.Thread(target=self._loop, args=k, daemon=True, name=k[0]) for k in kinds]
         for t in threads:
             t.start()
         return threads
+
+
+def broken_plugins(tmp: str) -> str:
+    """A folder holding three installed domain plugins that do not work (as pip installs
+    them: a .dist-info with entry points): a module that is not installed, version 0, a
+    physics half that does not import. The server must start and serve the rest."""
+    root = os.path.join(tmp, "plugins")
+    info = os.path.join(root, "tmoc_soak_broken-0.1.dist-info")
+    os.makedirs(info)
+    with open(os.path.join(info, "METADATA"), "w") as f:
+        f.write("Metadata-Version: 2.1\nName: tmoc-soak-broken\nVersion: 0.1\n")
+    with open(os.path.join(info, "entry_points.txt"), "w") as f:
+        f.write("[tmoc.domains]\nghost = tmoc_soak_not_installed:DOMAIN\nzero = tmoc_soak_broken:ZERO\n"
+                "hollow = tmoc_soak_broken:HOLLOW\n")
+    with open(os.path.join(root, "tmoc_soak_broken.py"), "w") as f:
+        f.write('ZERO = {"physics": "sim_workers.container:ContainerDomain", '
+                '"task": "planner.container:ContainerTask", "version": 0}\n'
+                'HOLLOW = {"physics": "tmoc_soak_gone:Physics", "task": "planner.container:ContainerTask"}\n')
+    return root
 
 
 def probe_health(base: str, stop: threading.Event, out: list[float]) -> None:
@@ -209,7 +258,9 @@ def main() -> int:
     port = free_port()
     tmp = tempfile.mkdtemp(prefix="soak_hostile_")
     log = open(os.path.join(tmp, "server.log"), "w")
-    env = dict(os.environ, RAY_USAGE_STATS_ENABLED="0", TMOC_API_TOKEN=TOKEN)
+    plugins = broken_plugins(tmp)
+    env = dict(os.environ, RAY_USAGE_STATS_ENABLED="0", TMOC_API_TOKEN=TOKEN,
+               PYTHONPATH=os.pathsep.join(filter(None, [plugins, os.environ.get("PYTHONPATH")])))
     proc = subprocess.Popen([sys.executable, "-m", "coordinator.cli", "serve", "--port", str(port),
                              "--db", os.path.join(tmp, "soak.sqlite"), "--no-access-log",
                              "--log-level", "warning", "--max-queued", "64"],
@@ -235,7 +286,7 @@ def main() -> int:
         session_ids: list[str] = []
         prober = threading.Thread(target=probe_health, args=(base, stop, health), daemon=True)
         prober.start()
-        hostile = Hostile(base, stop, session_ids)
+        hostile = Hostile(base, stop, session_ids, os.path.join(tmp, "soak.sqlite"))
         threads = hostile.start()
         end = time.monotonic() + args.minutes * 60
         same_task, same_session, rounds = [], [], 0

@@ -298,6 +298,52 @@ def check_misalignment(d: Domain) -> str:
     return f"{named} of {len(_first_actions(d))} actions perception-sensitive"
 
 
+def check_pose_alternatives(d: Domain) -> str:
+    """Y's alternatives (``pose_alternatives``), where a domain offers any at the prior's
+    bounds, are poses of Y's shape, finite, inside the workspace and not Y's pose itself:
+    the coordinator runs each in every particle world."""
+    low, high = _prior(d)
+    workspace = workspace_of(d.physics)
+    config = d.physics.initial_configuration(_truth(d))
+    L = d.physics.L
+    offered = 0
+    for size in (low, high):
+        rows = np.full((2, len(L.names)), np.asarray(L.low, dtype=np.float64))
+        rows[:, 0] = size
+        for _, action in _first_actions(d):
+            pose = d.physics.action_pose(_sized(d, size), config, action)
+            for alt in d.physics.pose_alternatives(config, action, pose, rows):
+                alt = np.asarray(alt, dtype=np.float64)
+                assert alt.shape == pose.shape and np.all(np.isfinite(alt)), \
+                    f"pose_alternatives({action}) at {size}: not a finite pose of Y's shape"
+                assert np.all(alt[:3] >= workspace.low[:3]) and np.all(alt[:3] <= workspace.high[:3]), \
+                    f"pose_alternatives({action}) at {size} = {alt[:3]} is outside the workspace"
+                assert not np.array_equal(alt, pose), f"pose_alternatives({action}) at {size} repeats Y's pose"
+                offered += 1
+    return f"{offered} alternatives at the prior's bounds"
+
+
+def check_option_bounds(d: Domain) -> str:
+    """Every numeric option a request may set (the task half's ``http_options``) declares a
+    lower and an upper bound, and every range the physics half declares
+    (``option_ranges``) is an option's, holding its default: a request or run outside them
+    is refused by name, never failing later (issue 38)."""
+    from .domains import options_of
+
+    for key, decl in dict(d.task.http_options).items():
+        if decl.get("type") in (int, float):
+            assert any(k in decl for k in ("ge", "gt")) and any(k in decl for k in ("le", "lt")), \
+                f"http_options[{key!r}]: a number needs a lower and an upper bound (ge/gt, le/lt)"
+    known = options_of(d.physics)
+    ranges = dict(type(d.physics).option_ranges)
+    for key, (low, high) in ranges.items():
+        assert key in known, f"option_ranges[{key!r}]: not an option of the domain"
+        default = known[key]
+        assert low <= high and (default is None or low <= default <= high), \
+            f"option_ranges[{key!r}] = ({low}, {high}) does not hold the default {default!r}"
+    return f"{len(dict(d.task.http_options))} request options bounded, {len(ranges)} ranges"
+
+
 CHECKS: dict[str, Callable[[Domain], str]] = {
     "structure": check_structure,
     "spec": check_spec,
@@ -311,6 +357,8 @@ CHECKS: dict[str, Callable[[Domain], str]] = {
     "y_batch": check_y_batch,
     "measurements": check_measurements,
     "misalignment": check_misalignment,
+    "pose_alternatives": check_pose_alternatives,
+    "option_bounds": check_option_bounds,
 }
 
 

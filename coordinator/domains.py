@@ -19,6 +19,7 @@ mapping ``{"physics": "pkg.physics:Cls", "task": "pkg.task:Cls", "description": 
 from __future__ import annotations
 
 import dataclasses
+import logging
 import math
 from dataclasses import dataclass
 from typing import Any
@@ -34,10 +35,44 @@ BUILTIN = physics_registry.BUILTIN
 specs = physics_registry.specs
 spec = physics_registry.spec
 DEFAULT_DOMAIN = physics_registry.DEFAULT_DOMAIN
+_log = logging.getLogger("tmoc.domains")
 
 
 def names() -> list[str]:
-    return sorted(specs())
+    """The usable domains: built-ins and registered ones, and every plugin whose two halves
+    import, build at their defaults and implement their protocols (the rest: ``broken``)."""
+    return sorted(n for n, s in specs().items() if _halves_problem(s) is None)
+
+
+# Per plugin spec, why its halves are unusable (None: they are fine); checked once per process.
+_HALVES: dict[DomainSpec, str | None] = {}
+
+
+def _halves_problem(s: DomainSpec) -> str | None:
+    if s.source == "builtin" or s.name in physics_registry._REGISTRY:
+        return None        # a built-in's broken half is an error when used, never left out
+    if s not in _HALVES:
+        why = None
+        try:
+            physics_registry.load(s.name)        # imports, builds at its defaults, checks the protocol
+            task_half(s.name)
+        except Exception as exc:  # noqa: BLE001 - one plugin's failure stays its own
+            why = f"{type(exc).__name__}: {exc}" if not isinstance(exc, ValueError) else str(exc)
+        _HALVES[s] = why
+        if why is not None:
+            _log.warning("domain plugin %r left out: %s", s.name, why)
+    return _HALVES[s]
+
+
+def broken() -> dict[str, str]:
+    """Installed plugins left out, with why: entry points that do not load or validate
+    (``sim_workers.domains.broken_plugins``) and plugins whose halves do not import."""
+    out = physics_registry.broken_plugins()
+    for name, s in specs().items():
+        why = _halves_problem(s)
+        if why is not None:
+            out[name] = why
+    return dict(sorted(out.items()))
 
 
 @dataclass
@@ -180,6 +215,13 @@ def _option_defaults(name: str) -> dict:
 _DEFAULTS: dict = {}
 
 
+def _option_ranges(name: str) -> dict:
+    """The closed ranges the domain declares for its numeric options (``option_ranges``)."""
+    s = spec(name)
+    factory = physics_registry._REGISTRY.get(s.name) or physics_registry.import_string(s.physics)
+    return dict(getattr(factory, "option_ranges", {}) or {})
+
+
 def checked_options(name: str, options: dict, n_blocks: int | None = None) -> tuple[dict, Any]:
     """``check_options``, and the physics half built with them (one build)."""
     known = _option_defaults(name)
@@ -194,4 +236,26 @@ def checked_options(name: str, options: dict, n_blocks: int | None = None) -> tu
         physics = load(name, **({"n_blocks": n_blocks} if n_blocks else {}), **options).physics
     except (ValueError, TypeError) as exc:
         raise ValueError(f"options.{exc}") from None
+    for key, value in options.items():          # the domain's own messages first, then its bounds
+        _check_bounds(name, key, value)
     return dict(options), physics
+
+
+_CMP = {"ge": (lambda v, b: v >= b, ">="), "gt": (lambda v, b: v > b, ">"),
+        "le": (lambda v, b: v <= b, "<="), "lt": (lambda v, b: v < b, "<")}
+
+
+def _check_bounds(name: str, key: str, value: Any) -> None:
+    """An option's value inside what the domain declares: its HTTP field's bounds (the task
+    half's ``http_options``: the CLI refuses what a request would) and its physics half's
+    ``option_ranges``; ValueError naming ``options.KEY`` otherwise (issue 38)."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        return
+    decl = dict(task_half(name).http_options).get(key, {})
+    for op, (ok, sign) in _CMP.items():
+        if op in decl and not ok(value, decl[op]):
+            raise ValueError(f"options.{key}: {value!r} must be {sign} {decl[op]:g}")
+    bounds = _option_ranges(name).get(key)
+    if bounds is not None and not bounds[0] <= value <= bounds[1]:
+        raise ValueError(f"options.{key}: {value!r} is outside the domain's range "
+                         f"[{bounds[0]:g}, {bounds[1]:g}]")

@@ -101,9 +101,32 @@ def write_mcap(out: BinaryIO, steps: Iterable[dict], episodes: Iterable[dict], m
     return counts
 
 
+def _json(text: str, where: str):
+    try:
+        return json.loads(text)
+    except ValueError as exc:
+        raise ExportError(f"{where}: not JSON ({exc})") from None
+
+
+def _step_problem(rec) -> str | None:
+    """Why a step record cannot be exported (None: it can)."""
+    if not isinstance(rec, dict):
+        return "not an object"
+    for key, kind in (("episode", int), ("step", int), ("action", str)):
+        if not isinstance(rec.get(key), kind) or isinstance(rec.get(key), bool):
+            return f"no {key!r} ({kind.__name__})"
+    traj = rec.get("trajectory")
+    if traj is not None and not (isinstance(traj, dict) and isinstance(traj.get("columns"), list)
+                                 and isinstance(traj.get("points"), list)):
+        return "'trajectory' is not {columns: [...], points: [...]}"
+    if not isinstance(rec.get("time", 0.0), (int, float)) or isinstance(rec.get("time"), bool):
+        return "'time' is not a number"
+    return None
+
+
 def read_run(run_dir: str | Path) -> tuple[list[dict], list[dict], dict]:
     """(steps, episodes, meta) of a ``tmoc run`` output directory; ExportError naming what
-    is missing."""
+    is missing or malformed (the file, and the line of a step record), never a traceback."""
     d = Path(run_dir)
     result, steps = d / "result.json", d / STEPS_FILE
     if not d.is_dir():
@@ -111,11 +134,31 @@ def read_run(run_dir: str | Path) -> tuple[list[dict], list[dict], dict]:
     if not result.is_file() or not steps.is_file():
         missing = result.name if not result.is_file() else steps.name
         raise ExportError(f"{run_dir}: no {missing} (a `tmoc run --out` directory of this version)")
-    data = json.loads(result.read_text(encoding="utf-8"))
-    records = [json.loads(line) for line in steps.read_text(encoding="utf-8").splitlines() if line.strip()]
-    config = data.get("config", {})
-    meta = {"source": "run", "domain": config.get("domain", ""), "config": config}
-    return records, list(data.get("episodes", [])), meta
+    try:
+        result_text = result.read_text(encoding="utf-8")
+        steps_text = steps.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ExportError(f"{run_dir}: unreadable ({exc})") from None
+    data = _json(result_text, str(result))
+    if not isinstance(data, dict):
+        raise ExportError(f"{result}: not a JSON object")
+    config, episodes = data.get("config", {}), data.get("episodes", [])
+    if not isinstance(config, dict):
+        raise ExportError(f"{result}: 'config' is not an object")
+    if not isinstance(episodes, list) or not all(isinstance(e, dict) for e in episodes):
+        raise ExportError(f"{result}: 'episodes' is not a list of objects")
+    records = []
+    for n, line in enumerate(steps_text.splitlines(), start=1):
+        if not line.strip():
+            continue
+        rec = _json(line, f"{steps}, line {n}")
+        why = _step_problem(rec)
+        if why is not None:
+            raise ExportError(f"{steps}, line {n}: a step record with {why}" if why.startswith("no ")
+                              else f"{steps}, line {n}: {why}")
+        records.append(rec)
+    meta = {"source": "run", "domain": str(config.get("domain", "")), "config": config}
+    return records, list(episodes), meta
 
 
 def export_run(run_dir: str | Path, out_path: str | Path) -> dict:

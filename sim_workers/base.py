@@ -44,6 +44,11 @@ class PhysicsDomain(abc.ABC):
     # domain that reads none pays nothing.
     logs_sensors: ClassVar[bool] = False
     probe_actions: ClassVar[tuple[str, ...]] = ()   # what `tmoc probe` can try in this domain
+    # Closed ranges of numeric options (spec fields) a run or request may set: a value
+    # outside is refused naming ``options.KEY`` (issue 38: `force_sigma: 1e-300` passed and
+    # every observation then failed; a time step of 1e-9 s would cost unbounded CPU).
+    # Options not named here are checked for type and finiteness only.
+    option_ranges: ClassVar[dict[str, tuple[float, float]]] = {}
     # The engine this domain's worlds are built in (``sim_workers.engines``): set by
     # ``sim_workers.domains.load(..., engine=)``; None is the default engine.
     engine: str | None = None
@@ -165,6 +170,16 @@ class PhysicsDomain(abc.ABC):
         """The discrete choice Y makes for each row of L ((N, D) -> (N,) ints), so that the
         coordinator averages a pose within one class only; default: one class."""
         return np.zeros(len(rows), dtype=np.int64)
+
+    def pose_alternatives(self, config: Configuration, action: str, pose: np.ndarray,
+                          rows: np.ndarray) -> list[np.ndarray]:
+        """Other poses Y could give `action` for the same objects (a cube's other grasp, a
+        grasp side), for the particle worlds to judge: the coordinator tries each in every
+        world of the belief (`rows`, (N, D)) when `pose` is not predicted to succeed in all
+        of them, and takes the one predicted to succeed for most of the belief's weight
+        (issue 40, "Y's alternatives"; docs/LOOP.md). The domain may leave out the ones
+        that cannot differ (nothing within reach); default: none."""
+        return []
 
     def misalignment(self, config: Configuration, action: str) -> tuple[int, np.ndarray] | None:
         """Where an error in perception changes the action's outcome: the row of

@@ -10,7 +10,10 @@ that shards and coordinator read the same one, and nothing here imports a domain
 Built-in domains are ``BUILTIN``; other installed packages add theirs through the
 ``tmoc.domains`` entry-point group: each entry point names a mapping ``{"physics":
 "module:Class", "task": "module:Class", "description": ..., "version": N}``. A built-in
-whose half fails to import is an error when it is used, never left out of the table.
+whose half fails to import is an error when it is used, never left out of the table; a
+plugin that does not load or validate is left out, logged once, and listed with its reason
+(``broken_plugins``; ``coordinator.domains.broken`` adds plugins whose halves do not
+import), never stopping the service or another domain (issue 38).
 
 ``version`` (default 1) changes when a domain's scene, Y or T's contexts change in a way
 that makes stored learning invalid: it enters checkpoints and the T* cache keys, and a
@@ -20,6 +23,7 @@ of a domain (an error if the installed one is another).
 from __future__ import annotations
 
 import importlib
+import logging
 import re
 from dataclasses import dataclass
 from importlib import metadata
@@ -38,6 +42,8 @@ def __getattr__(name: str):
 
         return PhysicsDomain
     raise AttributeError(name)
+
+_log = logging.getLogger("tmoc.domains")
 
 ENTRY_POINT_GROUP = "tmoc.domains"
 # The domain a request, a command or a stored record means when it names none: used at the
@@ -128,20 +134,57 @@ def import_string(path: str) -> Any:
     return obj
 
 
+# The installed plugins, scanned once per process (`rescan` reads them again): the entry
+# points that gave a domain mapping, and the ones left out with why (issue 38: a broken
+# plugin was imported again about three times per request, on the event loop).
+_SCANNED: tuple[dict[str, Mapping], dict[str, str]] | None = None
+
+
+def _scan() -> tuple[dict[str, Mapping], dict[str, str]]:
+    global _SCANNED
+    if _SCANNED is not None:
+        return _SCANNED
+    found: dict[str, Mapping] = {}
+    broken: dict[str, str] = {}
+    for ep in metadata.entry_points(group=ENTRY_POINT_GROUP):
+        dist = getattr(ep.dist, "name", None)
+        try:
+            spec = ep.load()
+        except Exception as exc:  # noqa: BLE001 - a broken plugin must not hide the others
+            broken[ep.name] = f"its entry point {ep.value!r} does not load ({type(exc).__name__}: {exc})"
+            continue
+        if not (isinstance(spec, Mapping) and "physics" in spec and "task" in spec):
+            broken[ep.name] = f"its entry point {ep.value!r} is not a mapping with 'physics' and 'task'"
+            continue
+        try:
+            _version(spec.get("version", 1), ep.name)
+        except ValueError as exc:
+            broken[ep.name] = str(exc)
+            continue
+        found[ep.name] = {**spec, "distribution": dist}
+    for name, why in sorted(broken.items()):
+        _log.warning("domain plugin %r left out: %s", name, why)      # once per process
+    _SCANNED = (found, broken)
+    return _SCANNED
+
+
+def rescan() -> None:
+    """Read the installed plugins again on next use (after installing one in-process)."""
+    global _SCANNED
+    _SCANNED = None
+
+
 def plugin_entries() -> dict[str, Mapping]:
     """Domains installed by other packages: name -> {"physics": ..., "task": ..., ...}.
 
-    An entry point that cannot be loaded or is not such a mapping is skipped here (and
-    reported by name when that domain is asked for)."""
-    found: dict[str, Mapping] = {}
-    for ep in metadata.entry_points(group=ENTRY_POINT_GROUP):
-        try:
-            spec = ep.load()
-        except Exception:  # noqa: BLE001 - a broken plugin must not hide the others
-            continue
-        if isinstance(spec, Mapping) and "physics" in spec and "task" in spec:
-            found[ep.name] = {**spec, "distribution": getattr(ep.dist, "name", None)}
-    return found
+    An entry point that cannot be loaded, is not such a mapping or declares no positive
+    integer version is left out here and named by ``broken_plugins`` with its reason."""
+    return dict(_scan()[0])
+
+
+def broken_plugins() -> dict[str, str]:
+    """The installed plugins left out of the registry: name -> why (`tmoc domains` lists them)."""
+    return dict(_scan()[1])
 
 
 def specs() -> dict[str, DomainSpec]:

@@ -14,10 +14,15 @@ router = APIRouter()
 @router.get("/domains", response_model=S.DomainList, tags=["domains"])
 async def list_domains():
     """Every registered domain (built-in and installed plugins), as `tmoc domains`."""
-    from coordinator.domains import describe, names
+    from coordinator.domains import broken, describe, names
 
-    items = [await run_in_threadpool(describe, n) for n in names()]
-    return {"items": items, "total": len(items)}
+    items, left_out = [], await run_in_threadpool(broken)
+    for n in names():
+        try:
+            items.append(await run_in_threadpool(describe, n))
+        except Exception as exc:  # noqa: BLE001 - one broken plugin must not hide the others
+            left_out[n] = f"{type(exc).__name__}: {exc}"
+    return {"items": items, "total": len(items), "broken": left_out}
 
 
 @router.get("/domains/{name}", response_model=S.DomainView, tags=["domains"],

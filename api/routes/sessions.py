@@ -15,8 +15,8 @@ from starlette.concurrency import run_in_threadpool
 from .. import exports
 from .. import schemas as S
 from .. import views
-from ..deps import SessionId, SessionsDep, StoreDep, session_or_404
-from ..errors import error_responses, refuse_invalid_config
+from ..deps import SessionId, SessionsDep, SettingsDep, StoreDep, session_or_404
+from ..errors import error_responses, refuse_invalid_config, refuse_unstorable
 from ..sessions import SessionBusy, SessionConflict, SessionGone
 from ..store import QueueFull
 
@@ -32,11 +32,12 @@ def router(session_create: type) -> APIRouter:
     r = APIRouter()
 
     async def create_session(body: session_create, response: Response, store: StoreDep,
-                             sessions: SessionsDep):
+                             sessions: SessionsDep, settings: SettingsDep):
         """A TMOC session whose real world is an external robot. With `observation`, its
         first episode starts at once and `next` is the first action to execute."""
         spec = S.spec_body(body, exclude={"observation"})
         refuse_invalid_config(spec)
+        refuse_unstorable(spec, settings.max_stored_steps)
         initial = body.observation.model_dump(mode="json") if body.observation is not None else None
         try:
             session_id, nxt = await run_in_threadpool(sessions.create, spec, initial)
@@ -65,7 +66,8 @@ routes = APIRouter()
 async def list_sessions(store: StoreDep, limit: Annotated[int, Query(ge=1, le=200)] = 50,
                         offset: Annotated[int, Query(ge=0, le=10**9)] = 0):
     rows, total = store.list_sessions(limit, offset)
-    return views.page([views.session_view(r) for r in rows], total, limit, offset)
+    items, skipped = views.shown(rows, views.session_view, S.SessionView)
+    return views.page(items, total, limit, offset, skipped)
 
 
 @routes.get("/sessions/{session_id}", response_model=S.SessionView, tags=["sessions"],
@@ -82,6 +84,20 @@ async def close_session(session_id: SessionId, store: StoreDep, sessions: Sessio
     if status is None:
         raise HTTPException(404, f"session {session_id!r}: no such session")
     return views.session_view(session_or_404(store, session_id))
+
+
+@routes.post("/sessions/{session_id}/purge", response_model=S.PurgeView, tags=["sessions"],
+             responses=error_responses(404, 409))
+async def purge_session(session_id: SessionId, sessions: SessionsDep):
+    """Delete a closed or finished session's stored rows (the session, its episodes, step
+    records and observations); 409 while it is active (close it first)."""
+    outcome = await run_in_threadpool(sessions.purge, session_id)
+    if outcome is None:
+        raise HTTPException(404, f"session {session_id!r}: no such session")
+    status, purged = outcome
+    if not purged:
+        raise HTTPException(409, f"session {session_id!r} is {status}: close it, then purge it")
+    return {"id": session_id, "status": status, "purged": purged}
 
 
 async def _session_call(fn, *args):

@@ -20,7 +20,7 @@ from .. import schemas as S
 from .. import views
 from ..deps import (NotifierDep, SettingsDep, ShuttingDownDep, StoreDep, TaskId, TaskWorkerDep,
                     task_or_404)
-from ..errors import error_responses, refuse_invalid_config, unprocessable
+from ..errors import error_responses, refuse_invalid_config, refuse_unstorable, unprocessable
 from ..store import TERMINAL, QueueFull, new_id
 from ..task_worker import TaskWorker
 
@@ -57,6 +57,7 @@ def router(task_spec: type) -> APIRouter:
         task_id = new_id("t")
         body = S.spec_body(spec)
         refuse_invalid_config(body)
+        refuse_unstorable(body, settings.max_stored_steps)
         try:
             await run_in_threadpool(store.create_task, task_id, body, settings.max_queued)
         except QueueFull as exc:
@@ -86,7 +87,8 @@ async def list_tasks(store: StoreDep, worker: TaskWorkerDep,
                      status: Annotated[S.TaskStatus | None, Query()] = None):
     """Tasks, newest first."""
     rows, total = store.list_tasks(limit, offset, status)
-    return views.page([task_json(r, worker) for r in rows], total, limit, offset)
+    items, skipped = views.shown(rows, lambda r: task_json(r, worker), S.TaskView)
+    return views.page(items, total, limit, offset, skipped)
 
 
 @routes.get("/tasks/{task_id}", response_model=S.TaskView, tags=["tasks"],
@@ -114,6 +116,21 @@ async def cancel_task(task_id: TaskId, response: Response, store: StoreDep, work
     else:
         detail = "cancelled"
     return {**task_json(task_or_404(store, task_id), worker), "detail": detail}
+
+
+@routes.post("/tasks/{task_id}/purge", response_model=S.PurgeView, tags=["tasks"],
+             responses=error_responses(404, 409))
+async def purge_task(task_id: TaskId, store: StoreDep):
+    """Delete a finished task's stored rows (the task, its episodes, step records and
+    pictures); 409 while it is queued or running (cancel it first). Issue 38: nothing was
+    ever reclaimed. `tmoc serve --retain-days N` does this for every run older than N days."""
+    outcome = await run_in_threadpool(store.purge_task, task_id)
+    if outcome is None:
+        raise HTTPException(404, f"task {task_id!r}: no such task")
+    status, purged = outcome
+    if not purged:
+        raise HTTPException(409, f"task {task_id!r} is {status}: cancel it, then purge it")
+    return {"id": task_id, "status": status, "purged": purged}
 
 
 @routes.get("/tasks/{task_id}/episodes", tags=["tasks"], responses=error_responses(404),

@@ -15,7 +15,7 @@ from urllib.parse import parse_qs, urlsplit
 from fastapi import APIRouter, HTTPException, Path, Request
 from fastapi.responses import HTMLResponse, JSONResponse, RedirectResponse, Response
 
-from ..auth import COOKIE, SESSION_TTL_S, LoginThrottle, session_id, token_ok
+from ..auth import COOKIE, SESSION_TTL_S, LoginThrottle, client_address, session_id, token_ok
 from ..deps import CookieSessionsDep, SettingsDep
 
 TYPES = {".html": "text/html; charset=utf-8", ".js": "text/javascript; charset=utf-8",
@@ -91,7 +91,7 @@ async def login(request: Request, settings: SettingsDep, sessions: CookieSession
     throttle = getattr(request.app.state, "login_throttle", None)
     if throttle is None:
         throttle = request.app.state.login_throttle = LoginThrottle()
-    address = request.client.host if request.client else ""
+    address = client_address(request.scope)
     wait = throttle.retry_after(address, time.monotonic())
     if wait is not None:
         raise HTTPException(429, "too many failed sign-ins: wait and retry",

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, create_model, model_validator
+from pydantic import AfterValidator, BaseModel, ConfigDict, Field, create_model, model_validator
 
 from coordinator.domains import DEFAULT_DOMAIN
 from coordinator.run_config import Costs, RunConfig, field_bounds, stored_run_config
@@ -144,7 +144,8 @@ def _per_domain(name: str, doc: str, fields: dict, with_truth: bool) -> Any:
     container): each carries that domain's `options` (and `truth`)."""
     from pydantic import Discriminator, Tag
 
-    from coordinator.domains import load, names, task_half
+    from coordinator.domains import load, names, spec, task_half
+    from sim_workers.domains import canonical_name
 
     domain_info = fields["domain"][1]
     branches = []
@@ -164,10 +165,13 @@ def _per_domain(name: str, doc: str, fields: dict, with_truth: bool) -> Any:
                 None, max_length=64, pattern=f"^({'|'.join(acts)})(:[0-9]{{1,3}})?$",
                 description="a reality gap the particle worlds do not know: ACTION:K makes every "
                             "ACTION in a T context >= K fail in the simulated reality only"))
+        # Its name or its versioned id (`container-v1`), as the registry and the CLI take
+        # them (issue 38, row 12: the id got 422 over HTTP); read back as the name.
+        spelled = Annotated[Literal[d, spec(d).id], AfterValidator(canonical_name)]  # type: ignore[valid-type]
         if d == DEFAULT_DOMAIN:
-            own["domain"] = (Literal[DEFAULT_DOMAIN], Field(DEFAULT_DOMAIN, description=domain_info.description))
+            own["domain"] = (spelled, Field(DEFAULT_DOMAIN, description=domain_info.description))
         else:
-            own["domain"] = (Literal[d], Field(description=domain_info.description))  # type: ignore[valid-type]
+            own["domain"] = (spelled, Field(description=domain_info.description))
         label = "".join(w.title() for w in d.replace("-", "_").split("_"))
         model = create_model(f"{name}{label}", __base__=_SpecBase, __doc__=doc, **own)
         branches.append(Annotated[model, Tag(TAG_PREFIX + d)])
@@ -176,6 +180,11 @@ def _per_domain(name: str, doc: str, fields: dict, with_truth: bool) -> Any:
 
     def which(v: Any) -> str:
         d = v.get("domain", DEFAULT_DOMAIN) if isinstance(v, dict) else getattr(v, "domain", DEFAULT_DOMAIN)
+        if isinstance(d, str) and d not in names():
+            try:
+                d = canonical_name(d)          # a versioned id: its domain's branch
+            except ValueError:
+                pass
         return TAG_PREFIX + (d if isinstance(d, str) and d in names() else DEFAULT_DOMAIN)
 
     from typing import Union

@@ -63,6 +63,7 @@ class TaskList(BaseModel):
     limit: int
     offset: int
     next_offset: int | None
+    skipped: int = Field(0, description="rows of this page left out: their stored data is corrupt")
 
 
 class TaskCreated(BaseModel):
@@ -169,6 +170,7 @@ class SessionList(BaseModel):
     limit: int
     offset: int
     next_offset: int | None
+    skipped: int = Field(0, description="rows of this page left out: their stored data is corrupt")
 
 
 class SessionCreated(SessionView):
@@ -243,6 +245,8 @@ class DomainView(BaseModel):
 class DomainList(BaseModel):
     items: list[DomainView]
     total: int
+    broken: dict[str, str] = Field(default_factory=dict, description=(
+        "installed domain plugins left out, with why (they do not load, validate or import)"))
 
 
 # ------------------------------------------------------------------------- dashboard views
@@ -295,3 +299,9 @@ class TransitionView(BaseModel):
     episodes_done: int
     rows: list[TransitionRow] = Field(description="one per context, in the domain's order (the "
                                                   "optimistic prior before the first episode)")
+
+
+class PurgeView(BaseModel):
+    id: str
+    status: str = Field(description="the task's or session's status when it was purged")
+    purged: dict[str, int] = Field(description="rows deleted per stored table")

@@ -1,6 +1,6 @@
 """`tmoc domains [--json]`: every registered domain (built-in or installed plugin) with its
 objects, L (names, units, prior), measurement channels, actions, T contexts and utility
-terms."""
+terms; then every installed plugin left out as broken, with why (JSON: "broken")."""
 from __future__ import annotations
 
 import argparse
@@ -23,11 +23,16 @@ def _contexts_text(contexts: list) -> str:
 
 
 def main(args) -> int:
-    from coordinator.domains import describe, names
+    from coordinator.domains import broken, describe, names
 
-    described = {name: describe(name) for name in names()}
+    described, left_out = {}, broken()
+    for name in names():
+        try:
+            described[name] = describe(name)
+        except Exception as exc:  # noqa: BLE001 - one broken plugin must not hide the others
+            left_out[name] = f"{type(exc).__name__}: {exc}"
     if args.json:
-        print(json.dumps({"domains": described}, indent=2, sort_keys=True))
+        print(json.dumps({"domains": described, "broken": left_out}, indent=2, sort_keys=True))
         return 0
     for name, d in described.items():
         props = "; ".join(f"{p['name']} [{p['unit']}] ~ U({p['prior']['low']:g}, {p['prior']['high']:g})"
@@ -41,4 +46,6 @@ def main(args) -> int:
         print(f"  actions       {', '.join(d['actions'])}")
         print(f"  T contexts    {_contexts_text(d['contexts'])}")
         print(f"  utility       {', '.join(f'{k} {v:g}' for k, v in d['utility'].items())}")
+    for name, why in sorted(left_out.items()):
+        print(f"{name}  (broken plugin, left out)  {why}")
     return 0

@@ -51,6 +51,16 @@ def register(sub) -> None:
     p.add_argument("--allowed-host", action="append", default=[], metavar="NAME",
                    help="without TMOC_API_TOKEN, a Host name to answer besides localhost, "
                         "127.0.0.1, ::1 and --host (repeatable; '*': any)")
+    p.add_argument("--retain-days", type=float, default=None, metavar="DAYS",
+                   help="purge finished tasks and closed or finished sessions last changed more than "
+                        "DAYS ago, at start-up and hourly (default: keep everything)")
+    p.add_argument("--max-stored-steps", type=int, default=100_000, metavar="N",
+                   help="episodes x max_steps a task or session may ask for at most: the step "
+                        "records it may store (~1.4 KB each)")
+    p.add_argument("--forwarded-allow-ips", default=None, metavar="IPS",
+                   help="trust X-Forwarded-For/-Proto from these proxy addresses (comma-separated, "
+                        "'*': any); default: trust none, so the address a sign-in throttle "
+                        "counts is the connection's")
     p.set_defaults(func=main)
 
 
@@ -86,6 +96,11 @@ def check_args(args) -> str | None:
     budget = getattr(args, "max_task_runtime_s", 3600.0)
     if not 1.0 <= budget <= 366 * 86400:       # also refuses nan and inf
         raise UsageError(f"--max-task-runtime-s: must be in [1, 31622400] seconds (got {budget})")
+    retain = getattr(args, "retain_days", None)
+    if retain is not None and not 0.0 < retain <= 36600:       # also refuses nan and inf
+        raise UsageError(f"--retain-days: must be in (0, 36600] days (got {retain})")
+    if not 1 <= getattr(args, "max_stored_steps", 1) <= 10**8:
+        raise UsageError(f"--max-stored-steps: must be in [1, 100000000] (got {args.max_stored_steps})")
     if getattr(args, "max_frames", 0) < 0 or getattr(args, "max_frames", 0) > 10000:
         raise UsageError(f"--max-frames: must be in [0, 10000] (got {args.max_frames})")
     if args.shards is not None and args.shards < 1:
@@ -99,7 +114,9 @@ def check_args(args) -> str | None:
     return token or None
 
 
-LOOPBACK_NAMES = ("localhost", "127.0.0.1", "::1")
+# An IPv6 literal arrives in brackets (`Host: [::1]:8000`, RFC 3986), and Starlette keeps
+# them; both spellings are listed (issue 38: `Host: [::1]` got 400).
+LOOPBACK_NAMES = ("localhost", "127.0.0.1", "::1", "[::1]")
 
 
 def allowed_hosts(args, token: str | None) -> tuple[str, ...] | None:
@@ -111,6 +128,7 @@ def allowed_hosts(args, token: str | None) -> tuple[str, ...] | None:
     names = [*LOOPBACK_NAMES, *extra]
     if args.host not in ("0.0.0.0", "::", ""):
         names.append(args.host)
+    names += [f"[{n}]" for n in list(names) if ":" in n and not n.startswith("[")]
     return tuple(dict.fromkeys(names))
 
 
@@ -171,12 +189,17 @@ def main(args) -> int:
                         max_sessions=args.max_sessions, n_shards=args.shards,
                         max_frames=args.max_frames, allowed_hosts=allowed_hosts(args, token),
                         max_task_runtime_s=args.max_task_runtime_s,
-                        session_idle_s=args.session_idle_s)
+                        session_idle_s=args.session_idle_s, retain_days=args.retain_days,
+                        max_stored_steps=args.max_stored_steps)
     app = create_app(settings)
     config = uvicorn.Config(app, host=args.host, port=args.port, workers=1,
                             log_level=args.log_level, access_log=not args.no_access_log,
                             timeout_graceful_shutdown=10, lifespan="on",
-                            limit_concurrency=args.max_connections)
+                            limit_concurrency=args.max_connections,
+                            # uvicorn trusts X-Forwarded-For from loopback by default: a local
+                            # proxy's header would pick the address a throttle counts (issue 38).
+                            proxy_headers=args.forwarded_allow_ips is not None,
+                            forwarded_allow_ips=args.forwarded_allow_ips)
     server = _Server(config, app)
     # Our own Ray's agents outlived a kill -9 by 60 s; a reaper takes them down (issue 25).
     # A cluster we join is not ours to reap.

@@ -169,11 +169,12 @@ def check_state(state: Iterable[str]) -> None:
         if len(atoms) > 1:
             raise ValueError(f"inconsistent state: block {block} is in several places: "
                              f"{', '.join(atoms)}")
-    n = max(block_index(b) for b in where)
     missing = first_missing(block_index(b) for b in where)
     if missing is not None:
+        # The highest block named is not echoed: an atom of 64 characters can name b1e52
+        # (issue 38, row 12).
         raise ValueError(f"incomplete state: block b{missing} has no location "
-                         f"(blocks must be b1..b{n}, each in exactly one place)")
+                         f"(blocks must be b1..bN, each in exactly one place)")
     if len(container) != 1:
         raise ValueError("inconsistent state: the container needs exactly one of "
                          f"is_in({CONTAINER},init), is_in({CONTAINER},goal); got "

@@ -7,6 +7,19 @@ import numpy as np
 from ..configuration import Configuration, face_yaw, rotate_z
 
 
+# The block domains' option ranges (``PhysicsDomain.option_ranges``): wide around the
+# calibrated values, narrow enough that no request costs unbounded CPU (a step at most
+# 1/60 s and at least 1/1000 s, at most 400 solver iterations, 5 s of settling, speeds at
+# least 2 cm/s) or breaks the likelihood (a sensor sigma of at least 1 mN).
+BLOCK_OPTION_RANGES: dict[str, tuple[float, float]] = {
+    "time_step": (1.0 / 1000.0, 1.0 / 60.0), "solver_iterations": (10, 400), "settle_s": (0.0, 5.0),
+    "move_speed": (0.02, 2.0), "approach_speed": (0.02, 2.0), "lift_speed": (0.02, 2.0),
+    "push_speed": (0.02, 2.0), "finger_speed": (0.02, 2.0), "push_accel": (0.1, 50.0),
+    "push_decel": (0.1, 50.0), "push_time_jitter": (0.0, 0.9), "weigh_s": (0.01, 2.0),
+    "force_sigma": (1e-3, 100.0), "density": (1.0, 25000.0), "density_low": (1.0, 25000.0),
+    "density_high": (1.0, 25000.0), "grip_force": (0.1, 200.0), "base_max_force": (1.0, 2000.0),
+}
+
 # The box around the fingertips where a block counts as held (metres).
 HAND_OPEN_MARGIN = 0.01          # opening above max_opening minus this: nothing is gripped
 HAND_X_MARGIN = 0.012            # beyond the finger's half thickness, across the fingers
@@ -53,3 +66,41 @@ def pickup_misalignment(spec, config: Configuration, action: str, first_block_ro
         return None
     row = first_block_row + block_index(spec, args[1])
     return row, closing_axis(config.objects[row, 3:])
+
+
+def quarter_turn(yaw: float) -> float:
+    """The other face pair of a cube under the fingers: `yaw` (folded, [-pi/4, pi/4)) a
+    quarter turn round, towards zero so that the hand turns at most pi/2."""
+    return float(yaw + np.pi / 2 if yaw < 0 else yaw - np.pi / 2)
+
+
+def grasp_alternatives(spec, config: Configuration, action: str, pose: np.ndarray,
+                       largest: float, first_block_row: int) -> list[np.ndarray]:
+    """The block domains' ``pose_alternatives``: a pickup's grasp a quarter turn round (the
+    cube's other pair of faces between the fingers), offered when another block stands
+    within reach of the open fingers; other actions, or nothing within reach: none.
+
+    Within reach: a block's centre closer to the target's than the open fingers' outer
+    faces (half the opening plus a finger's thickness) plus the largest believed block's
+    half diagonal, the farthest its footprint reaches in any direction. Beyond that no
+    finger of either grasp can touch it and a cube's two grasps are the same grasp, so the
+    worlds are not asked (a bound, not a tuned margin: blocks 71-80 mm apart in their slots
+    are within reach from about 50 mm up)."""
+    from .terms import block_index, parse_action
+
+    name, args = parse_action(action)
+    if name != "pickup":
+        return []
+    pose = np.asarray(pose, dtype=np.float64)
+    n = len(spec.block_names)
+    row = first_block_row + block_index(spec, args[1])
+    others = [first_block_row + i for i in range(n) if first_block_row + i != row]
+    if not others:
+        return []
+    reach = 0.5 * float(pose[4]) + 2.0 * spec.finger_half[1] + np.sqrt(0.5) * float(largest)
+    d = np.linalg.norm(config.objects[others, :2] - config.objects[row, :2], axis=1)
+    if not np.any(d < reach):
+        return []
+    alt = pose.copy()
+    alt[3] = quarter_turn(float(pose[3]))
+    return [alt]

@@ -7,7 +7,7 @@ import re
 import numpy as np
 
 from ..base import PhysicsDomain
-from ..blocks.hand import pickup_misalignment
+from ..blocks.hand import BLOCK_OPTION_RANGES, grasp_alternatives, pickup_misalignment
 from ..blocks.terms import held_block
 from ..configuration import Configuration
 from ..scene import SceneDescription
@@ -21,6 +21,8 @@ class ContainerDomain(PhysicsDomain):
     """Blocks, an open container and a floating gripper; L = the blocks' side lengths."""
 
     name = "container"
+    # Only the ranges of options this scene has (``blocks.hand.BLOCK_OPTION_RANGES``).
+    option_ranges = {k: v for k, v in BLOCK_OPTION_RANGES.items() if k in ContainerSpec.__dataclass_fields__}
     # No action leaves bodies out (sim_workers/reach.py), although a pickup would gain x1.4
     # (benchmarks/bench_worlds.py (e)): with 50 solver iterations Bullet stops on a residual
     # summed over every contact row, so the resting bodies a pickup leaves out change when
@@ -119,6 +121,13 @@ class ContainerDomain(PhysicsDomain):
     def misalignment(self, config: Configuration, action: str) -> tuple[int, np.ndarray] | None:
         """A pickup's block and the fingers' closing axis (``blocks.hand.pickup_misalignment``)."""
         return pickup_misalignment(self.spec, config, action, 1)
+
+    def pose_alternatives(self, config: Configuration, action: str, pose: np.ndarray,
+                          rows: np.ndarray) -> list[np.ndarray]:
+        """A pickup's grasp a quarter turn round when a block is within the fingers' reach
+        (``blocks.hand.grasp_alternatives``; the largest believed size bounds the reach)."""
+        largest = float(np.max(self._row_sizes(rows))) if len(rows) else 0.0
+        return grasp_alternatives(self.spec, config, action, pose, largest, 1)
 
     def pose_classes(self, rows: np.ndarray, config: Configuration, action: str) -> np.ndarray:
         """The discrete choice Y makes for each row of L ((N, D) -> (N,) ints): for a stack

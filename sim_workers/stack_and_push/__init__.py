@@ -8,7 +8,7 @@ import dataclasses
 import numpy as np
 
 from ..base import PhysicsDomain
-from ..blocks.hand import pickup_misalignment
+from ..blocks.hand import BLOCK_OPTION_RANGES, grasp_alternatives, pickup_misalignment
 from ..blocks.terms import held_block
 from ..configuration import Configuration, Workspace
 from ..scene import SceneDescription
@@ -26,6 +26,8 @@ class StackAndPushDomain(PhysicsDomain):
     """Cubes, a guide rail and a floating gripper; L = the blocks' side lengths."""
 
     name = "stack_and_push"
+    # Only the ranges of options this scene has (``blocks.hand.BLOCK_OPTION_RANGES``).
+    option_ranges = {k: v for k, v in BLOCK_OPTION_RANGES.items() if k in StackAndPushSpec.__dataclass_fields__}
     # The action kinds whose particle worlds leave out the bodies they cannot reach
     # (sim_workers/reach.py), by measurement (benchmarks/bench_worlds.py (e), 2 cores): a
     # pickup x1.4, a stack onto a tower x1.09, the same symbolic outcomes and the weighed
@@ -163,6 +165,14 @@ class StackAndPushDomain(PhysicsDomain):
     def misalignment(self, config: Configuration, action: str) -> tuple[int, np.ndarray] | None:
         """A pickup's block and the fingers' closing axis (``blocks.hand.pickup_misalignment``)."""
         return pickup_misalignment(self.spec, config, action, 0)
+
+    def pose_alternatives(self, config: Configuration, action: str, pose: np.ndarray,
+                          rows: np.ndarray) -> list[np.ndarray]:
+        """A pickup's grasp a quarter turn round when a block is within the fingers' reach
+        (``blocks.hand.grasp_alternatives``; the largest believed size bounds the reach)."""
+        rows = np.atleast_2d(np.asarray(rows, dtype=np.float64))
+        largest = float(np.max(self._split_rows(rows)["size"])) if len(rows) else 0.0
+        return grasp_alternatives(self.spec, config, action, pose, largest, 0)
 
     def action_poses(self, rows: np.ndarray, config: Configuration, action: str) -> np.ndarray:
         """Y for every row of L at once ((N, D) -> (N, 5), or (N, 6) with mass in Y), bit

@@ -21,6 +21,7 @@ def test_health_and_the_domains_without_ray(client):
     assert client.get("/health").json()["status"] == "ok"
     names = {d["name"] for d in client.get("/v1/domains").json()["items"]}
     assert {"container", "stack_and_push"} <= names
+    assert client.get("/v1/domains").json()["broken"] == {}
     d = client.get("/v1/domains/stack_and_push").json()
     assert d["name"] == "stack_and_push" and ["push", 1] in d["contexts"]
     assert client.get("/v1/domains/nowhere").status_code == 404
@@ -87,7 +88,12 @@ def test_a_robot_sessions_steps_export_as_mcap_without_ray(client):
         replies = drive_episode(client, sid, robot, r.json()["next"])
     finally:
         robot.close()
-    exported = client.get(f"/v1/sessions/{sid}/export")
+    link = client.get(f"/v1/sessions/{sid}").json()["links"]["export"]     # issue 38, row 12
+    assert link == f"/v1/sessions/{sid}/export"
+    from api.views import task_links
+
+    assert task_links("t_x")["export"] == "/v1/tasks/t_x/export"
+    exported = client.get(link)
     assert exported.status_code == 200 and exported.headers["content-type"] == "application/octet-stream"
     reader = make_reader(io.BytesIO(exported.content))
     steps = [json.loads(m.data) for _, ch, m in reader.iter_messages(topics=["/tmoc/step"])]
@@ -96,3 +102,87 @@ def test_a_robot_sessions_steps_export_as_mcap_without_ray(client):
     assert len(steps) == 2 and steps[1]["configuration_before"] == steps[0]["configuration_after"]
     assert client.get("/v1/sessions/s_doesnotexist/export").status_code == 404
     assert client.get("/v1/tasks/t_doesnotexist/export").status_code == 404
+
+
+def test_a_domains_versioned_id_is_taken_over_http(client):
+    """Issue 38, row 12: `container-v1` is the registry's and the CLI's name for the
+    container at version 1; over HTTP it got 422. It is read back as the name."""
+    import numpy as np
+
+    from coordinator.reality import SimulatedReality
+
+    robot = SimulatedReality("container", {"n_blocks": 3}, {"block_sizes": np.full(3, 0.045)})
+    try:
+        start = robot.start_episode(np.random.default_rng(0))
+    finally:
+        robot.close()
+    body = {"agent": "tmp_rl", "episodes": 1, "max_steps": 2, "n_blocks": 3,
+            "observation": {"configuration": start.configuration.to_dict()}}
+    r = client.post("/v1/sessions", json={**body, "domain": "container-v1"})
+    assert r.status_code == 201, r.text
+    assert r.json()["spec"]["domain"] == "container"
+    r = client.post("/v1/sessions", json={**body, "domain": "container-v9"})
+    assert r.status_code == 422 and "domain" in r.text
+
+
+def test_a_server_error_closes_its_connection(tmp_path):
+    """Issue 38, row 8: after a 500 uvicorn closes the connection; without `Connection:
+    close` a keep-alive client sent its next request down it and got "connection reset"."""
+    app = create_app(Settings(db=str(tmp_path / "boom.sqlite")))
+
+    def boom():
+        raise RuntimeError("a bug")
+
+    app.add_api_route("/boom", boom)
+    with TestClient(app, raise_server_exceptions=False) as c:
+        r = c.get("/boom")
+        assert r.status_code == 500 and r.headers["connection"] == "close"
+        assert r.json() == {"detail": "internal error: RuntimeError"}
+        assert c.get("/health").status_code == 200
+
+
+def test_a_corrupt_row_fails_alone(tmp_path):
+    """Issue 38, row 9: a bad `sessions.pending` made `GET /v1/sessions` a 500 for the whole
+    list; a bad episode row gave `GET .../episodes` a 200 with invalid JSON. Now the list
+    leaves the bad row out (`skipped`) and the episode reads as a valid stand-in."""
+    import json
+    import sqlite3
+
+    import numpy as np
+
+    from coordinator.reality import SimulatedReality
+
+    from .conftest import drive_episode
+
+    db = tmp_path / "corrupt.sqlite"
+    with TestClient(create_app(Settings(db=str(db))), raise_server_exceptions=False) as c:
+        robot = SimulatedReality("container", {"n_blocks": 3}, {"block_sizes": np.full(3, 0.045)})
+        try:
+            ids = []
+            for _ in range(2):
+                start = robot.start_episode(np.random.default_rng(0))
+                r = c.post("/v1/sessions", json={"agent": "tmp_rl", "episodes": 2, "max_steps": 2, "n_blocks": 3,
+                                                 "observation": {"configuration": start.configuration.to_dict()}})
+                assert r.status_code == 201, r.text
+                ids.append(r.json()["id"])
+            drive_episode(c, ids[0], robot, c.get(f"/v1/sessions/{ids[0]}").json()["pending"])
+        finally:
+            robot.close()
+        with sqlite3.connect(db) as raw:
+            raw.execute("UPDATE sessions SET pending = '{' WHERE id = ?", (ids[1],))
+            raw.execute("UPDATE episodes SET record = '{' WHERE run_id = ?", (ids[0],))
+        listed = c.get("/v1/sessions")
+        assert listed.status_code == 200, listed.text
+        body = listed.json()
+        assert [s["id"] for s in body["items"]] == [ids[0]] and body["skipped"] == 1 and body["total"] == 2
+        assert c.get(f"/v1/sessions/{ids[0]}").status_code == 200
+        curve = c.get(f"/v1/sessions/{ids[0]}/curve")
+        assert curve.status_code == 200 and curve.json()["points"] == [], curve.text
+        from api.store import Store
+
+        store = Store(str(db))
+        try:
+            (episode, text), = store.episodes(ids[0])
+            assert episode == 0 and json.loads(text) == {"episode": 0, "corrupt": "the stored record is not valid JSON"}
+        finally:
+            store.close()

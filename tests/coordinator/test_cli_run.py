@@ -87,6 +87,32 @@ def test_export_refuses_what_is_not_a_run_in_one_line(tmp_path, capsys):
     assert not (tmp_path / "x.mcap").exists()
 
 
+GOOD_STEP = {"episode": 0, "step": 0, "action": "pickup(r,b1,init)", "time": 1.0,
+             "trajectory": {"columns": ["t"], "points": [[0.0]]}}
+
+
+@pytest.mark.parametrize("result, steps, named", [
+    ("{", json.dumps(GOOD_STEP), "result.json: not JSON"),
+    ("[]", json.dumps(GOOD_STEP), "result.json: not a JSON object"),
+    ('{"episodes": 3}', json.dumps(GOOD_STEP), "'episodes' is not a list"),
+    ('{"config": []}', json.dumps(GOOD_STEP), "'config' is not an object"),
+    ("{}", json.dumps(GOOD_STEP) + "\n{oops", "steps.jsonl, line 2: not JSON"),
+    ("{}", "[1, 2]", "steps.jsonl, line 1: not an object"),
+    ("{}", json.dumps({**GOOD_STEP, "action": None}), "line 1: a step record with no 'action'"),
+    ("{}", json.dumps({**GOOD_STEP, "trajectory": [1]}), "'trajectory' is not"),
+    ("{}", json.dumps({**GOOD_STEP, "time": "noon"}), "'time' is not a number"),
+    ("\udcff", json.dumps(GOOD_STEP), "unreadable"),
+])
+def test_export_over_malformed_run_files_is_one_line(tmp_path, capsys, result, steps, named):
+    """Issue 38, row 12: five malformed run files gave five different tracebacks."""
+    (tmp_path / "result.json").write_text(result, encoding="utf-8", errors="surrogateescape")
+    (tmp_path / "steps.jsonl").write_text(steps, encoding="utf-8")
+    assert main(["export", str(tmp_path), "-o", str(tmp_path / "x.mcap")]) == 2
+    err = capsys.readouterr().err
+    assert named in err and err.count("\n") == 1 and "Traceback" not in err, err
+    assert not (tmp_path / "x.mcap").exists()
+
+
 def test_config_file_then_flags_and_print_config(tmp_path, capsys):
     """Every setting reachable from a file (issue 16 item 5): settings without a flag
     (pose_rule, error_rate, use_measurements, costs) come from it; flags override it."""

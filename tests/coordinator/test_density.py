@@ -28,6 +28,11 @@ UNKNOWN = {"unknown_density": True}
     ({"options": {"unknown_density": "yes"}}, "options.unknown_density: expected true or false"),
     ({"options": {"force_sigma": "high"}}, "options.force_sigma: expected a number"),
     ({"options": {"force_sigma": -1.0}}, "options.force_sigma: -1.0 N must be positive"),
+    # Issue 38: inside no bound a sigma of 1e-300 broke every observation, and a time step
+    # of 1e-9 s would cost unbounded CPU; the domain's declared bounds refuse them by name.
+    ({"options": {"force_sigma": 1e-300}}, r"options.force_sigma: 1e-300 N is below 0.001 N"),
+    ({"options": {"time_step": 1e-9}}, r"options.time_step: 1e-09 is outside the domain's range"),
+    ({"options": {"solver_iterations": 10 ** 9}}, "options.solver_iterations: .* is outside"),
     ({"options": {"n_blocks": 4}}, "options.n_blocks: set n_blocks"),
     ({"options": {"true_size": 0.04}}, "options.true_size: set truth.size"),
     ({"truth": {"density": 2400.0}, "options": {"density": 700.0}}, "truth.density: 2400.0 disagrees with options.density"),

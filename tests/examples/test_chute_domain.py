@@ -127,3 +127,16 @@ def test_what_the_chute_does_not_have_is_refused_by_name(chute_registered, field
 
     with pytest.raises(ValidationError, match=named.replace(".", r"\.")):
         RunConfig(domain="chute", **fields)
+
+
+@pytest.mark.parametrize("options, named", [({"force_sigma": 1e-300}, "options.force_sigma"),
+                                            ({"position_sigma": 0.0}, "options.position_sigma")])
+def test_a_sigma_without_width_is_refused_by_name(chute_registered, options, named):
+    """Issue 38, row 7: `force_sigma: 1e-300` passed validation; every observation then
+    failed with "sigma/width: must be positive". The domain's bounds refuse it."""
+    from pydantic import ValidationError
+
+    from coordinator.run_config import RunConfig
+
+    with pytest.raises(ValidationError, match=named.replace(".", r"\.")):
+        RunConfig(domain="chute", truth={"friction": 0.6}, options=options)

@@ -115,6 +115,9 @@ class ChutePhysics(PhysicsDomain):
     max_blocks = 12
     logs_sensors = True
     probe_actions = ("sweep",)
+    # What a run may set the sensors' noise to (`tmoc run --option`, a request's options):
+    # a sigma near 0 leaves the likelihood no width.
+    option_ranges = {"position_sigma": (1e-4, 0.1), "force_sigma": (1e-3, 10.0)}
 
     def __init__(self, spec: ChuteSpec | None = None, **overrides) -> None:
         spec = spec or ChuteSpec()

@@ -87,7 +87,9 @@ class ChuteTask(TaskDomain):
                         "description": "the wrist's force limit along a stroke (N)"},
         "sweep_time_jitter": {"type": float, "ge": 0.0, "lt": 0.9,
                               "description": "a real arm strokes U(1 +- this) times as fast"},
-        "force_sigma": {"type": float, "gt": 0.0, "le": 10.0,
+        # At least 1 mN: a sigma near 0 (1e-300 passed "gt 0") leaves the likelihood no
+        # width (issue 38), and no wrist sensor reads finer.
+        "force_sigma": {"type": float, "ge": 0.001, "le": 10.0,
                         "description": "the wrist force sensor's noise (N)"},
     }
     http_truth = {"friction": {"type": float, "ge": 0.02, "le": 2.0,
