@@ -9,7 +9,11 @@ of every mode (up to ``MAX_MODES``, by weight) and the weighted mean of all pose
 run in every particle world, and the real pose is the candidate whose predicted success,
 sum_i w_i [x succeeds in world i], is highest: the decision that maximises the belief's
 expected success of the action (ties: the heaviest mode's, today's rule). A belief whose
-mode holds every particle has one candidate and pays no simulation.
+mode holds every particle has one candidate and pays no simulation, unless the domain
+offers Y's alternatives for the action (``pose_alternatives``: a cube's other grasp when
+a neighbour is within the fingers' reach): then the chosen pose is simulated, and where
+some world predicts it fails, each alternative too (issue 40's "Y's alternatives are
+simulated, not ruled out").
 """
 from __future__ import annotations
 
@@ -64,14 +68,40 @@ def pose_candidates(particles: np.ndarray, weights: np.ndarray, poses: np.ndarra
     return unique
 
 
-def choose_pose(candidates: list[np.ndarray], success: Callable[[np.ndarray], np.ndarray],
-                weights: np.ndarray) -> np.ndarray:
+def choose_pose(candidates: list[np.ndarray], success: Callable[..., np.ndarray],
+                weights: np.ndarray,
+                alternatives: Callable[[np.ndarray], list[np.ndarray]] | None = None) -> np.ndarray:
     """The candidate with the highest predicted success sum_i w_i success(x)_i (the first
-    of equals: the heaviest mode's). `success(x)` is (N,) in [0, 1], from the worlds."""
-    if len(candidates) == 1:
+    of equals: the heaviest mode's). `success(x)` is (N,) in [0, 1], from the worlds.
+
+    `alternatives(x)`: Y's other poses for the chosen candidate x (``pose_alternatives``:
+    a cube's other grasp). They are judged the same way, after the candidates, and only
+    while x is not predicted to succeed in every world (then nothing can beat it, and the
+    first of equals keeps Y's own pose); one replaces x only if strictly better. An
+    alternative is run first in the worlds where x may fail (`success(alt, rows)`: those
+    rows only): it can gain only there, so where it gains nothing the rest is not run."""
+    if len(candidates) == 1 and alternatives is None:
         return candidates[0]
     w = np.asarray(weights, dtype=np.float64)
     w = w / w.sum()
-    scores = np.array([float(w @ success(x)) for x in candidates])
+    results = [np.asarray(success(x), dtype=np.float64) for x in candidates]
+    scores = np.array([float(w @ r) for r in results])
     best = int(np.flatnonzero(scores >= scores.max() - 1e-9)[0])
-    return candidates[best]
+    chosen, held = candidates[best], results[best]
+    if alternatives is None:
+        return chosen
+    for alt in alternatives(chosen):
+        unsure = np.flatnonzero(held < 1.0 - 1e-12)
+        if unsure.size == 0:
+            break                                   # x succeeds in every world: unbeatable
+        there = np.asarray(success(alt, unsure), dtype=np.float64)
+        gain = float(w[unsure] @ (there - held[unsure]))
+        if gain <= 1e-9:
+            continue
+        sure = np.flatnonzero(held >= 1.0 - 1e-12)
+        here = np.asarray(success(alt, sure), dtype=np.float64) if sure.size else np.zeros(0)
+        if gain - float(w[sure] @ (held[sure] - here)) > 1e-9:
+            full = np.empty_like(held)
+            full[unsure], full[sure] = there, here
+            chosen, held = alt, full
+    return chosen

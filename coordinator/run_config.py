@@ -169,6 +169,10 @@ class RunConfig(BaseModel):
     # alone. Odd, so the perceived pose is a node. 1 by default: 3 removed the large end's
     # first-grasp loop but did not improve utility or coverage over 13 runs (docs/LOOP.md).
     perception_nodes: Literal[1, 3, 5, 7] = 1
+    # Y's alternatives (the domain's ``pose_alternatives``: a cube's other grasp when a
+    # neighbour is within the fingers' reach) judged by the particle worlds with the pose
+    # rule "success" (issue 40; docs/LOOP.md, "Y's alternatives"). Off: Y's pose alone.
+    pose_alternatives: bool = True
     costs: Costs = Costs()
     shards: int | None = Field(None, ge=0, le=4096)
     # The hidden truth by the names of L (`tmoc domains`), e.g. {"size": 0.04, "density":
@@ -339,7 +343,7 @@ PRE_SENSOR_NOISE = {"sensor_noise": 0.0, "sensor_bias": 0.0, "sensor_tails": "ga
 # pose): `tmoc run --config` with these reproduces it, and the benchmarks' "before".
 PRE_ISSUE_37_FILTER = {"ess_keep": 0.5, "resample_kernel": "rpf", "jitter_floor": 0.02,
                        "model_error": "online", "recovery": "prior", "pose_rule": "mode",
-                       "perception_nodes": 1}
+                       "perception_nodes": 1, "pose_alternatives": False}
 
 PRE_ISSUE_24_FILTER = {"outlier_rate": 0.0, "model_error": "none", "ess_keep": 0.0,
                        "resample_kernel": "jitter", "block_weights": False, "lock_in": False}
@@ -357,6 +361,8 @@ def stored_run_config(fields: dict) -> RunConfig:
     fields.setdefault("sim_discount", "none")
     # Before issue 37's filter: the lock-in monitor redrew from the prior.
     fields.setdefault("recovery", "prior")
+    # Before Y's alternatives: Y's pose alone.
+    fields.setdefault("pose_alternatives", False)
     # Before issue 24's filter: the plain Gaussian, sensor sigma, fixed jitter, no lock-in.
     for key, before in PRE_ISSUE_24_FILTER.items():
         fields.setdefault(key, before)

@@ -259,19 +259,21 @@ class Session:
     def _most_successful_pose(self, config: Configuration, action: str, view: Belief,
                               cols: np.ndarray, poses: np.ndarray) -> np.ndarray:
         """The candidate pose (each mode's, and the mean's; ``coordinator.real_pose``) that
-        the particle worlds predict succeeds for most of the belief's weight."""
+        the particle worlds predict succeeds for most of the belief's weight; with
+        ``pose_alternatives``, Y's other poses of the action (the domain's) judged too."""
         classes = self.domain.pose_classes(view.particles, config, action)
         cands = pose_candidates(view.particles[:, cols], view.weights, poses, classes,
                                 self.config.mode_bandwidth, self._mode_scale()[cols])
-        if len(cands) == 1:
+        if len(cands) == 1 and not self.config.pose_alternatives:
             return cands[0]
         expected = self.task.apply(self.state, action)
         start = config.to_array()
 
-        def success(x: np.ndarray) -> np.ndarray:
+        def success(x: np.ndarray, rows: np.ndarray | None = None) -> np.ndarray:
             traj = self.domain.action_trajectory(config, action, x)
             t_pre = self.domain.transit_end_time(config, action, x)
-            res = self._simulate_rows(start, np.ascontiguousarray(view.particles), action, traj, t_pre)
+            sub = view.particles if rows is None else view.particles[rows]
+            res = self._simulate_rows(start, np.ascontiguousarray(sub), action, traj, t_pre)
             self.particle_actions += res["particle_actions"]
             self.particle_steps += res["particle_steps"]
             # Each world's chance of success over the perception error (its nodes), so a
@@ -279,7 +281,13 @@ class Session:
             return sum(np.exp(lw) * np.array([s == expected for s in r["states"]], dtype=np.float64)
                        for lw, r in res.get("perception") or [(0.0, res)])
 
-        return choose_pose(cands, success, view.weights)
+        alternatives = None
+        if self.config.pose_alternatives:
+            def alternatives(x: np.ndarray) -> list[np.ndarray]:
+                return self.domain.pose_alternatives(config, action, x, view.particles)
+            if len(cands) == 1 and not alternatives(cands[0]):
+                return cands[0]             # nothing for the worlds to judge: no simulation
+        return choose_pose(cands, success, view.weights, alternatives)
 
     def _one_pose_class(self, keep: np.ndarray, view: Belief, config: Configuration,
                         action: str) -> np.ndarray:
