@@ -26,6 +26,7 @@ from . import schemas as S
 from .auth import CookieSessions, LoginThrottle
 from .deps import require_token
 from .errors import add_exception_handlers, error_responses
+from .exports import Exports
 from .middleware import add_middlewares
 from .notify import Notifier
 from .routes import domains, frames, service, sessions, tasks, ui
@@ -70,15 +71,18 @@ def _signal_restorer():
 PRUNE_EVERY_S = 3600.0       # how often `--retain-days` looks for runs past their time
 
 
-def _prune_forever(store: Store, retain_days: float, stopping: threading.Event) -> None:
+def _prune_forever(store: Store, exports: Exports, retain_days: float, stopping: threading.Event) -> None:
     """`tmoc serve --retain-days`: at start-up and then hourly, purge the finished tasks
-    and closed or finished sessions last changed more than `retain_days` ago (issue 38)."""
+    and closed or finished sessions last changed more than `retain_days` ago (issue 38),
+    their finished exports with them."""
     while not stopping.is_set():
         try:
             pruned = store.prune(retain_days * 86400.0)
+            for run_id in pruned["tasks"] + pruned["sessions"]:
+                exports.forget(run_id)
             if any(pruned.values()):
                 log.info("retention: purged %d tasks and %d sessions older than %g days",
-                         pruned["tasks"], pruned["sessions"], retain_days)
+                         len(pruned["tasks"]), len(pruned["sessions"]), retain_days)
         except Exception:  # noqa: BLE001 - storage trouble: try again at the next round
             log.exception("retention: pruning failed")
         stopping.wait(PRUNE_EVERY_S)
@@ -105,8 +109,11 @@ async def lifespan(app: FastAPI):
     stop_restore = threading.Event()
     threading.Thread(target=st.sessions.restore, args=(stop_restore,), name="tmoc-session-restore",
                      daemon=True).start()
+    if st.settings.session_idle_s != float("inf"):
+        threading.Thread(target=st.sessions.evict_forever, args=(stop_restore,), name="tmoc-idle-eviction",
+                         daemon=True).start()
     if st.settings.retain_days is not None:
-        threading.Thread(target=_prune_forever, args=(st.store, st.settings.retain_days, stop_restore),
+        threading.Thread(target=_prune_forever, args=(st.store, st.exports, st.settings.retain_days, stop_restore),
                          name="tmoc-retention", daemon=True).start()
     try:
         yield
@@ -128,6 +135,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.state.shard_pools = ShardPools(settings.ray_address, settings.n_shards)
     app.state.cookie_sessions = CookieSessions()
     app.state.login_throttle = LoginThrottle()
+    app.state.exports = Exports.beside(settings.db)
     add_middlewares(app, settings, app.state.cookie_sessions)
     if settings.allowed_hosts is not None:
         from starlette.middleware.trustedhost import TrustedHostMiddleware

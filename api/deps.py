@@ -13,6 +13,7 @@ from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 from coordinator.shard_pools import ShardPools
 
 from .auth import CookieSessions, authorised
+from .exports import Exports
 from .notify import Notifier
 from .sessions import SessionManager
 from .settings import Settings
@@ -44,6 +45,10 @@ def get_notifier(request: Request) -> Notifier:
     return request.app.state.notifier
 
 
+def get_exports(request: Request) -> Exports:
+    return request.app.state.exports
+
+
 def get_shard_pools(request: Request) -> ShardPools:
     return request.app.state.shard_pools
 
@@ -63,6 +68,7 @@ StoreDep = Annotated[Store, Depends(get_store)]
 TaskWorkerDep = Annotated[TaskWorker | None, Depends(get_task_worker)]
 SessionsDep = Annotated[SessionManager, Depends(get_sessions)]
 NotifierDep = Annotated[Notifier, Depends(get_notifier)]
+ExportsDep = Annotated[Exports, Depends(get_exports)]
 ShardPoolsDep = Annotated[ShardPools, Depends(get_shard_pools)]
 ShuttingDownDep = Annotated[asyncio.Event, Depends(get_shutting_down)]
 CookieSessionsDep = Annotated[CookieSessions, Depends(get_cookie_sessions)]
@@ -98,7 +104,7 @@ async def require_token(request: Request,
                             headers={"WWW-Authenticate": "Bearer"})
 
 
-__all__ = ["CookieSessionsDep", "NotifierDep", "SessionId", "SessionsDep", "SettingsDep",
+__all__ = ["CookieSessionsDep", "ExportsDep", "NotifierDep", "SessionId", "SessionsDep", "SettingsDep",
            "ShardPoolsDep", "ShuttingDownDep", "StoreDep", "TaskId", "TaskWorkerDep",
            "get_cookie_sessions", "get_notifier", "get_sessions", "get_settings", "get_shard_pools",
            "get_shutting_down", "get_store", "get_task_worker", "require_token", "session_or_404",

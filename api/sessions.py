@@ -230,6 +230,31 @@ class SessionManager:
                 self._restoring.discard(session_id)
         return done
 
+    def _replays(self, session_id: str) -> bool:
+        """Whether rebuilding the session replays observed steps (not only an episode start)."""
+        row = self.store.get_session(session_id)
+        return bool(row is not None and row["status"] == "active" and row["in_episode"] and row["step"] > 0)
+
+    def _restore_one(self, session_id: str) -> None:
+        """Rebuild one session on this thread (added to `_restoring` by the caller)."""
+        try:
+            with self._lock_for(session_id):
+                self._load(session_id)
+        except Exception as exc:  # noqa: BLE001 - left to the next request, which reports it
+            log.warning("session %s: replay failed (%s: %s)", session_id, type(exc).__name__, exc)
+        finally:
+            self._restoring.discard(session_id)
+
+    def evict_forever(self, stopping: threading.Event) -> None:
+        """Drop idle sessions from memory on a timer (issue 38: only a new session's
+        creation did, so an idle server kept them all)."""
+        every = max(1.0, min(60.0, self.idle_s / 2))
+        while not stopping.wait(every):
+            try:
+                self._evict_idle()
+            except Exception:  # noqa: BLE001 - try again next time
+                log.exception("idle eviction failed")
+
     def _evict_idle(self) -> None:
         """Drop from memory the live sessions unused for `idle_s` that no request holds;
         the store keeps them (the next request rebuilds one, replaying its episode)."""
@@ -243,6 +268,18 @@ class SessionManager:
                     live.lock.release()
 
     def _get(self, session_id: str) -> LiveSession:
+        """The live session, for a request under its lock. One that must be rebuilt by
+        replaying observed steps (its robot came back after `idle_s`) is replayed on a thread
+        of its own, like a restart's, and this request gets SessionBusy (409 "being
+        restored", Retry-After) at once: issue 38, the first request waited for the whole
+        replay (4.9 s for 4 steps x 64 particles; minutes at 512)."""
+        if session_id in self._restoring:
+            raise SessionBusy(session_id, restoring=True)
+        if session_id not in self._live and self._replays(session_id):
+            self._restoring.add(session_id)
+            threading.Thread(target=self._restore_one, args=(session_id,), name=f"tmoc-replay-{session_id}",
+                             daemon=True).start()
+            raise SessionBusy(session_id, restoring=True)
         live = self._load(session_id)
         live.used = time.monotonic()
         if live.status == "closed":

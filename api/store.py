@@ -496,10 +496,16 @@ class Store:
             counts[name] = db.execute(sql, (run_id,)).rowcount
         return counts
 
-    def prune(self, older_than_s: float, now: float | None = None) -> dict[str, int]:
+    def export_counts(self, run_id: str) -> tuple[int, int]:
+        """(step records, episode rows) stored for a run: what names its export."""
+        steps = self._one("SELECT COUNT(*) FROM steps WHERE run_id = ?", (run_id,))[0]
+        episodes = self._one("SELECT COUNT(*) FROM episodes WHERE run_id = ?", (run_id,))[0]
+        return int(steps), int(episodes)
+
+    def prune(self, older_than_s: float, now: float | None = None) -> dict[str, list[str]]:
         """Purge every finished task and every closed or finished session last changed more
         than `older_than_s` seconds ago (`tmoc serve --retain-days`), one run per
-        transaction so that other writers wait at most one run's delete. Runs purged."""
+        transaction so that other writers wait at most one run's delete. The ids purged."""
         cutoff = (time.time() if now is None else now) - older_than_s
         marks = ", ".join("?" * len(TERMINAL))
         tasks = [r[0] for r in self._all(f"SELECT id FROM tasks WHERE status IN ({marks}) AND updated_at < ?",
@@ -510,7 +516,7 @@ class Store:
             self.purge_task(t)
         for s in sessions:
             self.purge_session(s)
-        return {"tasks": len(tasks), "sessions": len(sessions)}
+        return {"tasks": tasks, "sessions": sessions}
 
 
 def new_id(prefix: str) -> str:

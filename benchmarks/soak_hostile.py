@@ -15,16 +15,18 @@ and a prober reads `/health` every 0.1 s:
 - row 4: 16-block tasks with a 3 s budget, and the same cancelled after 2 s;
 - row 7: one-block tasks; row 9: 24 event streams on one task (16 allowed);
 - row 12: wrong tokens at `POST /ui/login`; row 14: text/plain bodies, trailing periods;
-- issue 38: wrong bearer tokens as fast as they are answered, a corrupt session row written
+- issue 38: five concurrent exports of the latest task and two opened and never read,
+  wrong bearer tokens as fast as they are answered, a corrupt session row written
   into the database (the session list must stay 200, leaving it out), and the server
   started with three broken domain plugins installed (`GET /v1/domains` lists them).
 
 The guessers (rows 12 and 38) connect from other loopback addresses (127.0.0.7, .8): the
 throttle refuses a guessing address, and the normal clients' 127.0.0.1 must go on.
 
-Prints `/health`'s p50/p99/max, what every hostile kind got (status codes), and whether
-each run of the normal task and session had the same results as alone (timings aside).
-Exit status 1 if p99 >= 0.5 s or any result differs.
+Prints `/health`'s p50/p99/max, what every hostile kind got (status codes), whether each
+run of the normal task and session had the same results as alone (timings aside), and the
+server process's resident memory before the hostile clients and 10 s after they left.
+Exit status 1 if p99 >= 0.5 s, any result differs, or the memory grew by more than 20 %.
 """
 from __future__ import annotations
 
@@ -197,6 +199,36 @@ class Hostile:
         yield r.status_code
         yield "listed" if r.status_code == 200 and len(r.json().get("broken", {})) == 3 else "not listed"
 
+    def exports(self, c):
+        """Issue 38, rows 1-3: five exports of the latest task at once, and two that are
+        opened and never read (each the server must bound, then drop)."""
+        tasks = c.get("/v1/tasks", headers=self.auth, params={"limit": 1}).json().get("items", [])
+        if not tasks:
+            return
+        url = f"/v1/tasks/{tasks[0]['id']}/export"
+        codes: list = []
+
+        def read_all() -> None:
+            with httpx.stream("GET", self.base + url, headers=self.auth, timeout=120) as r:
+                codes.append(r.status_code)
+                for _ in r.iter_bytes():
+                    pass
+
+        unread = [httpx.Client(base_url=self.base, timeout=120) for _ in range(2)]
+        streams = [u.stream("GET", url, headers=self.auth) for u in unread]
+        for st in streams:
+            codes.append(st.__enter__().status_code)       # headers only: the body is not read
+        threads = [threading.Thread(target=read_all) for _ in range(5)]
+        for t in threads:
+            t.start()
+        for t in threads:
+            t.join()
+        time.sleep(5.0)
+        for st, u in zip(streams, unread):
+            st.__exit__(None, None, None)
+            u.close()
+        yield from codes
+
     def careless(self, c):
         yield c.post("/v1/tasks", content=b"hello", headers={**self.auth, "content-type": "text/plain"}).status_code
         yield c.post("/v1/tasks", content=b"{not json", headers={**self.auth,
@@ -211,7 +243,8 @@ class Hostile:
                  ("row 12 wrong token", 1.0, self.wrong_tokens, "127.0.0.7"),
                  ("row 14 careless", 0.5, self.careless),
                  ("38 bearer guess", 0.05, self.bearer_guess, "127.0.0.8"),
-                 ("38 corrupt row", 30.0, self.corrupt_row), ("38 broken plugins", 10.0, self.broken_plugins)]
+                 ("38 corrupt row", 30.0, self.corrupt_row), ("38 broken plugins", 10.0, self.broken_plugins),
+                 ("38 exports", 5.0, self.exports)]
         threads = [threading.Thread(target=self._loop, args=k, daemon=True, name=k[0]) for k in kinds]
         for t in threads:
             t.start()
@@ -235,6 +268,15 @@ def broken_plugins(tmp: str) -> str:
                 '"task": "planner.container:ContainerTask", "version": 0}\n'
                 'HOLLOW = {"physics": "tmoc_soak_gone:Physics", "task": "planner.container:ContainerTask"}\n')
     return root
+
+
+def rss_mib(pid: int) -> float:
+    """The server process's resident memory (MiB; its own, not Ray's processes)."""
+    with open(f"/proc/{pid}/status") as f:
+        for line in f:
+            if line.startswith("VmRSS:"):
+                return round(int(line.split()[1]) / 1024, 1)
+    return float("nan")
 
 
 def probe_health(base: str, stop: threading.Event, out: list[float]) -> None:
@@ -281,6 +323,7 @@ def main() -> int:
         print(f"alone: task {len(alone_task)} episodes, session {len(alone_session['actions'])} steps, "
               f"{alone_s:.0f} s", flush=True)
 
+        rss_start = rss_mib(proc.pid)
         stop = threading.Event()
         health: list[float] = []
         session_ids: list[str] = []
@@ -303,7 +346,10 @@ def main() -> int:
         stop.set()
         for th in threads + [prober]:
             th.join(timeout=120)
+        time.sleep(10.0)                     # the clients have left: what the server keeps
+        rss_end = rss_mib(proc.pid)
         figures = {
+            "server_rss_mib_start": rss_start, "server_rss_mib_after": rss_end,
             "minutes": args.minutes, "rounds": rounds, "health_requests": len(health),
             "health_p50_ms": round(pct(health, 50) * 1000, 1),
             "health_p99_ms": round(pct(health, 99) * 1000, 1),
@@ -316,7 +362,8 @@ def main() -> int:
         if args.out:
             with open(args.out, "w") as f:
                 json.dump(figures, f, indent=1)
-        ok = (figures["health_p99_ms"] < 500 and all(same_task) and all(same_session) and rounds > 0)
+        ok = (figures["health_p99_ms"] < 500 and all(same_task) and all(same_session) and rounds > 0
+              and rss_end <= 1.2 * rss_start)
         return 0 if ok else 1
     finally:
         try:

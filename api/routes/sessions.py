@@ -9,13 +9,12 @@ import json
 from typing import Annotated
 
 from fastapi import APIRouter, HTTPException, Query, Response
-from fastapi.responses import StreamingResponse
 from starlette.concurrency import run_in_threadpool
 
 from .. import exports
 from .. import schemas as S
 from .. import views
-from ..deps import SessionId, SessionsDep, SettingsDep, StoreDep, session_or_404
+from ..deps import ExportsDep, SessionId, SessionsDep, SettingsDep, StoreDep, session_or_404
 from ..errors import error_responses, refuse_invalid_config, refuse_unstorable
 from ..sessions import SessionBusy, SessionConflict, SessionGone
 from ..store import QueueFull
@@ -88,7 +87,7 @@ async def close_session(session_id: SessionId, store: StoreDep, sessions: Sessio
 
 @routes.post("/sessions/{session_id}/purge", response_model=S.PurgeView, tags=["sessions"],
              responses=error_responses(404, 409))
-async def purge_session(session_id: SessionId, sessions: SessionsDep):
+async def purge_session(session_id: SessionId, sessions: SessionsDep, built: ExportsDep):
     """Delete a closed or finished session's stored rows (the session, its episodes, step
     records and observations); 409 while it is active (close it first)."""
     outcome = await run_in_threadpool(sessions.purge, session_id)
@@ -97,6 +96,7 @@ async def purge_session(session_id: SessionId, sessions: SessionsDep):
     status, purged = outcome
     if not purged:
         raise HTTPException(409, f"session {session_id!r} is {status}: close it, then purge it")
+    await run_in_threadpool(built.forget, session_id)
     return {"id": session_id, "status": status, "purged": purged}
 
 
@@ -142,14 +142,13 @@ async def observe(session_id: SessionId, observation: S.StepObservation, session
 
 
 @routes.get("/sessions/{session_id}/export", tags=["sessions"], response_class=Response,
-            responses={**exports.RESPONSES, **error_responses(404)})
-async def export_session(session_id: SessionId, store: StoreDep):
+            responses={**exports.RESPONSES, **error_responses(404, 429)})
+async def export_session(session_id: SessionId, store: StoreDep, built: ExportsDep):
     """Every step the robot took in this session (action, commanded trajectory, observed
-    configurations, measurements, outcome, belief) as MCAP (``tmoc export``)."""
+    configurations, measurements, outcome, belief) as MCAP (``tmoc export``), streamed as
+    it is written; 429 while too many exports are being built."""
     row = session_or_404(store, session_id)
-    f = await run_in_threadpool(exports.mcap_file, store, session_id, "session", row["spec"])
-    return StreamingResponse(exports.chunks(f), media_type=exports.MEDIA_TYPE,
-                             headers=exports.download(session_id))
+    return await exports.serve(built, store, session_id, "session", row["spec"])
 
 
 @routes.get("/sessions/{session_id}/belief", response_model=S.BeliefView, tags=["sessions"],

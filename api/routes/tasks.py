@@ -18,7 +18,7 @@ from starlette.concurrency import run_in_threadpool
 from .. import exports
 from .. import schemas as S
 from .. import views
-from ..deps import (NotifierDep, SettingsDep, ShuttingDownDep, StoreDep, TaskId, TaskWorkerDep,
+from ..deps import (ExportsDep, NotifierDep, SettingsDep, ShuttingDownDep, StoreDep, TaskId, TaskWorkerDep,
                     task_or_404)
 from ..errors import error_responses, refuse_invalid_config, refuse_unstorable, unprocessable
 from ..store import TERMINAL, QueueFull, new_id
@@ -120,7 +120,7 @@ async def cancel_task(task_id: TaskId, response: Response, store: StoreDep, work
 
 @routes.post("/tasks/{task_id}/purge", response_model=S.PurgeView, tags=["tasks"],
              responses=error_responses(404, 409))
-async def purge_task(task_id: TaskId, store: StoreDep):
+async def purge_task(task_id: TaskId, store: StoreDep, built: ExportsDep):
     """Delete a finished task's stored rows (the task, its episodes, step records and
     pictures); 409 while it is queued or running (cancel it first). Issue 38: nothing was
     ever reclaimed. `tmoc serve --retain-days N` does this for every run older than N days."""
@@ -130,6 +130,7 @@ async def purge_task(task_id: TaskId, store: StoreDep):
     status, purged = outcome
     if not purged:
         raise HTTPException(409, f"task {task_id!r} is {status}: cancel it, then purge it")
+    await run_in_threadpool(built.forget, task_id)
     return {"id": task_id, "status": status, "purged": purged}
 
 
@@ -257,12 +258,12 @@ async def task_curve(task_id: TaskId, store: StoreDep):
 
 
 @routes.get("/tasks/{task_id}/export", tags=["tasks"], response_class=Response,
-            responses={**exports.RESPONSES, **error_responses(404)})
-async def export_task(task_id: TaskId, store: StoreDep):
-    """Every step of the task's finished episodes as MCAP (``tmoc export``)."""
+            responses={**exports.RESPONSES, **error_responses(404, 429)})
+async def export_task(task_id: TaskId, store: StoreDep, built: ExportsDep):
+    """Every step of the task's finished episodes as MCAP (``tmoc export``), streamed as it
+    is written; 429 while too many exports are being built (``api.exports``)."""
     row = task_or_404(store, task_id)
-    f = await run_in_threadpool(exports.mcap_file, store, task_id, "task", row["spec"])
-    return StreamingResponse(exports.chunks(f), media_type=exports.MEDIA_TYPE, headers=exports.download(task_id))
+    return await exports.serve(built, store, task_id, "task", row["spec"])
 
 
 @routes.get("/tasks/{task_id}/curve.png", tags=["tasks"], response_class=Response,

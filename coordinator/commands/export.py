@@ -12,6 +12,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import time
 import urllib.error
 import urllib.request
 from pathlib import Path
@@ -19,6 +20,7 @@ from pathlib import Path
 from . import UsageError
 
 TIMEOUT_S = 300.0
+BUSY_RETRIES = 12          # 429 (the server's export builds are busy): wait Retry-After, retry
 
 
 def register(sub) -> None:
@@ -38,9 +40,17 @@ def _download(server: str, kind: str, ident: str, token: str | None, out: Path) 
     url = f"{server.rstrip('/')}/v1/{kind}s/{urllib.request.quote(ident, safe='')}/export"
     req = urllib.request.Request(url, headers={"Authorization": f"Bearer {token}"} if token else {})
     try:
-        with urllib.request.urlopen(req, timeout=TIMEOUT_S) as resp, open(out, "wb") as f:
-            while block := resp.read(1 << 16):
-                f.write(block)
+        for attempt in range(BUSY_RETRIES + 1):
+            try:
+                # The server streams the MCAP as it writes it; the timeout is per read.
+                with urllib.request.urlopen(req, timeout=TIMEOUT_S) as resp, open(out, "wb") as f:
+                    while block := resp.read(1 << 16):
+                        f.write(block)
+                return
+            except urllib.error.HTTPError as exc:
+                if exc.code != 429 or attempt == BUSY_RETRIES:
+                    raise
+                time.sleep(min(float(exc.headers.get("Retry-After") or 5), 30.0))   # builds are busy
     except urllib.error.HTTPError as exc:
         detail = exc.read().decode("utf-8", "replace")[:300]
         raise UsageError(f"--{kind}: {url} answered {exc.code}: {detail}") from None

@@ -17,7 +17,7 @@ from coordinator.reality import SimulatedReality
 from planner import stack_and_push_symbolic as sps
 from planner import symbolic as sy
 
-from .conftest import Server, free_port, observation_body, stream_events, tmoc, wait_for
+from .conftest import Server, act_and_observe, free_port, observation_body, stream_events, tmoc, wait_for
 
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(300)]
 
@@ -348,6 +348,42 @@ def test_an_abandoned_session_stops_holding_a_slot(tmp_path):
             assert back.status_code == 200 and back.json()["status"] == "active"
     finally:
         srv.stop()
+
+
+@pytest.mark.timeout(300)
+def test_a_returning_idle_session_is_replayed_in_the_background(tmp_path):
+    """Issue 38, row 10: a robot returning after --session-idle-s waited for its whole
+    episode's replay inside its first request, and idle sessions left memory only when
+    someone created a session. Now eviction runs on a timer and the first request gets 409
+    "being restored" with Retry-After at once; the Python client waits it out and gets the
+    step it left at."""
+    from api.client import TMOCClient
+
+    robot = SimulatedReality("container", {"n_blocks": 4}, {"block_sizes": np.full(4, 0.045)})
+    srv = Server(tmp_path / "idle-replay.sqlite", "--session-idle-s", "2", token=None).start()
+    try:
+        with srv.client() as c:
+            obs = robot.start_episode(np.random.default_rng(0))
+            r = c.post("/v1/sessions", json={"particles": 16, "episodes": 1, "n_blocks": 4, "max_steps": 20,
+                                             "seed": 4, "observation": {"configuration": obs.configuration.to_dict()}})
+            assert r.status_code == 201, r.text
+            sid, step = r.json()["id"], r.json()["next"]
+            for _ in range(2):
+                r, _ = act_and_observe(c, sid, robot, step)
+                assert r.status_code == 200, r.text
+                step = r.json()["next"]
+            time.sleep(4.0)                      # idle past 2 s, and the timer (every 1 s) ran
+            t0 = time.perf_counter()
+            first = c.get(f"/v1/sessions/{sid}/next")
+            assert time.perf_counter() - t0 < 1.0
+            assert first.status_code == 409 and "being restored" in first.json()["detail"], first.text
+            assert int(first.headers["retry-after"]) > 0
+        with TMOCClient(srv.base) as client:
+            nxt = client._call("GET", f"/v1/sessions/{sid}/next")["pending"]
+        assert nxt["step_id"] == step["step_id"] and nxt["action"] == step["action"]
+    finally:
+        srv.stop()
+        robot.close()
 
 
 def test_after_kill_9_ray_goes_within_seconds(tmp_path):
