@@ -134,7 +134,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.state.notifier = Notifier()
     app.state.shard_pools = ShardPools(settings.ray_address, settings.n_shards)
     app.state.cookie_sessions = CookieSessions()
-    app.state.login_throttle = LoginThrottle()
+    app.state.login_throttle = LoginThrottle(per_address=settings.max_auth_failures,
+                                             in_all=10 * settings.max_auth_failures)
     app.state.exports = Exports.beside(settings.db)
     add_middlewares(app, settings, app.state.cookie_sessions)
     if settings.allowed_hosts is not None:

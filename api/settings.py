@@ -42,6 +42,9 @@ class Settings:
     # episodes x max_steps a task or session may ask for at most: the step records it can
     # store (~1.4 KB a step; 100000 steps ~140 MB).
     max_stored_steps: int = 100_000
+    # Failed sign-ins (wrong tokens, at /ui/login or as a bearer) an address may make in a
+    # minute before it is refused (429) until they age out; 10x that over all addresses.
+    max_auth_failures: int = 10
 
 
 __all__ = ["Settings"]

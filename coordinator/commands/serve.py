@@ -57,6 +57,9 @@ def register(sub) -> None:
     p.add_argument("--max-stored-steps", type=int, default=100_000, metavar="N",
                    help="episodes x max_steps a task or session may ask for at most: the step "
                         "records it may store (~1.4 KB each)")
+    p.add_argument("--max-auth-failures", type=int, default=10, metavar="N",
+                   help="wrong tokens (sign-ins or bearer) an address may send in a minute before "
+                        "it is refused with 429 until they age out (10 N over all addresses)")
     p.add_argument("--forwarded-allow-ips", default=None, metavar="IPS",
                    help="trust X-Forwarded-For/-Proto from these proxy addresses (comma-separated, "
                         "'*': any); default: trust none, so the address a sign-in throttle "
@@ -99,6 +102,8 @@ def check_args(args) -> str | None:
     retain = getattr(args, "retain_days", None)
     if retain is not None and not 0.0 < retain <= 36600:       # also refuses nan and inf
         raise UsageError(f"--retain-days: must be in (0, 36600] days (got {retain})")
+    if not 1 <= getattr(args, "max_auth_failures", 10) <= 10**6:
+        raise UsageError(f"--max-auth-failures: must be in [1, 1000000] (got {args.max_auth_failures})")
     if not 1 <= getattr(args, "max_stored_steps", 1) <= 10**8:
         raise UsageError(f"--max-stored-steps: must be in [1, 100000000] (got {args.max_stored_steps})")
     if getattr(args, "max_frames", 0) < 0 or getattr(args, "max_frames", 0) > 10000:
@@ -190,7 +195,8 @@ def main(args) -> int:
                         max_frames=args.max_frames, allowed_hosts=allowed_hosts(args, token),
                         max_task_runtime_s=args.max_task_runtime_s,
                         session_idle_s=args.session_idle_s, retain_days=args.retain_days,
-                        max_stored_steps=args.max_stored_steps)
+                        max_stored_steps=args.max_stored_steps,
+                        max_auth_failures=args.max_auth_failures)
     app = create_app(settings)
     config = uvicorn.Config(app, host=args.host, port=args.port, workers=1,
                             log_level=args.log_level, access_log=not args.no_access_log,

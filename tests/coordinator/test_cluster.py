@@ -58,8 +58,11 @@ def test_shards_land_on_both_nodes_with_the_same_result(scenarios):
     nodes = _by_node(rt)
     assert set(nodes) == {scenarios["head"], scenarios["worker"]}
     assert rt["shards"] == 2 and all(n["shards"] == 1 for n in nodes.values())
-    # 4 particles, 2 per shard, on every action.
-    assert all(n["particle_actions"] == rt["particle_actions"] // 2 > 0 for n in nodes.values())
+    # 4 particles, 2 per shard, on every action; Y's alternatives are judged in the rows
+    # where Y's pose may fail only (an odd count splits 2 + 1), so the halves are close.
+    assert sum(n["particle_actions"] for n in nodes.values()) == rt["particle_actions"]
+    assert all(0.4 * rt["particle_actions"] <= n["particle_actions"] <= 0.6 * rt["particle_actions"]
+               for n in nodes.values()), nodes
     assert all(n["hostname"] for n in nodes.values()) and rt["reruns"] == 0
     assert scenarios["two"]["result"] == scenarios["single"]["result"]
 
