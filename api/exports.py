@@ -186,6 +186,22 @@ async def serve(exports: Exports, store: Store, run_id: str, kind: str, spec: di
     return BoundedStream(stream(source), media_type=MEDIA_TYPE, headers=download(run_id))
 
 
+async def purged(purge, exports: Exports, kind: str, run_id: str, first: str) -> dict:
+    """A purge route's reply: `purge(run_id)` (a store or manager method) run in a thread,
+    404 for an unknown run, 409 naming what to do `first` while it is not finished, and
+    the run's kept exports deleted with its rows."""
+    from fastapi import HTTPException
+
+    outcome = await run_in_threadpool(purge, run_id)
+    if outcome is None:
+        raise HTTPException(404, f"{kind} {run_id!r}: no such {kind}")
+    status, rows = outcome
+    if not rows:
+        raise HTTPException(409, f"{kind} {run_id!r} is {status}: {first} it, then purge it")
+    await run_in_threadpool(exports.forget, run_id)
+    return {"id": run_id, "status": status, "purged": rows}
+
+
 def download(name: str) -> dict:
     return {"Content-Disposition": f'attachment; filename="{name}.mcap"'}
 

@@ -33,7 +33,9 @@ def shown(rows: list, view: Callable[[dict], dict], model: type) -> tuple[list[d
         try:
             if row is None:
                 raise ValueError("a stored column is not valid JSON")
-            items.append(model.model_validate(view(row)).model_dump(mode="json"))
+            item = view(row)
+            model.model_validate(item)          # a row that would fail the response: left out here
+            items.append(item)
         except Exception as exc:  # noqa: BLE001 - one corrupt row must not fail the list
             skipped += 1
             _log.error("list: a stored row is corrupt and left out (%s: %s)", type(exc).__name__, exc)

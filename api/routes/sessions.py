@@ -90,14 +90,7 @@ async def close_session(session_id: SessionId, store: StoreDep, sessions: Sessio
 async def purge_session(session_id: SessionId, sessions: SessionsDep, built: ExportsDep):
     """Delete a closed or finished session's stored rows (the session, its episodes, step
     records and observations); 409 while it is active (close it first)."""
-    outcome = await run_in_threadpool(sessions.purge, session_id)
-    if outcome is None:
-        raise HTTPException(404, f"session {session_id!r}: no such session")
-    status, purged = outcome
-    if not purged:
-        raise HTTPException(409, f"session {session_id!r} is {status}: close it, then purge it")
-    await run_in_threadpool(built.forget, session_id)
-    return {"id": session_id, "status": status, "purged": purged}
+    return await exports.purged(sessions.purge, built, "session", session_id, "close")
 
 
 async def _session_call(fn, *args):

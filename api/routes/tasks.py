@@ -124,14 +124,7 @@ async def purge_task(task_id: TaskId, store: StoreDep, built: ExportsDep):
     """Delete a finished task's stored rows (the task, its episodes, step records and
     pictures); 409 while it is queued or running (cancel it first). Issue 38: nothing was
     ever reclaimed. `tmoc serve --retain-days N` does this for every run older than N days."""
-    outcome = await run_in_threadpool(store.purge_task, task_id)
-    if outcome is None:
-        raise HTTPException(404, f"task {task_id!r}: no such task")
-    status, purged = outcome
-    if not purged:
-        raise HTTPException(409, f"task {task_id!r} is {status}: cancel it, then purge it")
-    await run_in_threadpool(built.forget, task_id)
-    return {"id": task_id, "status": status, "purged": purged}
+    return await exports.purged(store.purge_task, built, "task", task_id, "cancel")
 
 
 @routes.get("/tasks/{task_id}/episodes", tags=["tasks"], responses=error_responses(404),
