@@ -95,8 +95,9 @@ async def lifespan(app: FastAPI):
     st.store = Store(st.settings.db)
     st.worker = TaskWorker(st.store, st.shard_pools, st.notifier, max_frames=st.settings.max_frames,
                            max_runtime_s=st.settings.max_task_runtime_s)
+    stop_restore = threading.Event()
     st.sessions = SessionManager(st.store, st.shard_pools, st.settings.max_sessions,
-                                 st.settings.session_idle_s)
+                                 st.settings.session_idle_s, stopping=stop_restore)
     loop = asyncio.get_running_loop()
     st.notifier.bind(loop)
     st.shutting_down = asyncio.Event()
@@ -106,7 +107,6 @@ async def lifespan(app: FastAPI):
     restore_signals = _signal_restorer()
     st.shard_pools.on_ray_ready = lambda: loop.call_soon_threadsafe(restore_signals)
     st.worker.start()
-    stop_restore = threading.Event()
     threading.Thread(target=st.sessions.restore, args=(stop_restore,), name="tmoc-session-restore",
                      daemon=True).start()
     if st.settings.session_idle_s != float("inf"):

@@ -46,6 +46,14 @@ class SessionBusy(SessionConflict):
             else "a step is in progress") + "; retry in a moment")
 
 
+class ReplayStopped(SessionBusy):
+    """The server began to stop during a session's replay: it ends at its next step, and
+    the next start replays the episode again (nothing stored changes)."""
+
+    def __init__(self, session_id: str) -> None:
+        super().__init__(session_id, restoring=True)
+
+
 # How long a request waits for a session another request holds (a pool thread waits
 # meanwhile: issue 25, 45 GETs of /next behind one 256-particle step used up all 40).
 LOCK_WAIT_S = 0.25
@@ -71,8 +79,11 @@ class SessionManager:
     """External-robot sessions, kept in memory and mirrored to the store."""
 
     def __init__(self, store: Store, shard_pools: ShardPools, max_active: int,
-                 idle_s: float = float("inf")) -> None:
+                 idle_s: float = float("inf"), stopping: threading.Event | None = None) -> None:
         self.store = store
+        # Set when the server stops: a replay under way ends at its next step (issue 38 row
+        # 11: a SIGTERM during the start-up restore waited 7-11 s for it).
+        self.stopping = stopping if stopping is not None else threading.Event()
         self.shard_pools = shard_pools
         self.max_active = max_active
         self.idle_s = idle_s          # then a session leaves memory and the max_active count
@@ -200,30 +211,41 @@ class SessionManager:
                 session.start_episode(from_canonical(row["episode_start"]))
                 plan()
                 for obs in steps:
+                    if self.stopping.is_set():
+                        raise ReplayStopped(session_id)
                     session.observe(from_canonical(obs))
                     live.step += 1
                     plan()
 
-            self._with_pool(live, replay)
+            try:
+                self._with_pool(live, replay)
+            except Exception:
+                if self.stopping.is_set():     # its pool closed or its shards killed under it
+                    raise ReplayStopped(session_id) from None
+                raise
         self._live[session_id] = live
         return live
 
-    def restore(self, stopping: threading.Event) -> int:
+    def restore(self, stopping: threading.Event | None = None) -> int:
         """Rebuild, after a restart, every session that was in the middle of an episode
         (oldest first), each under its lock; returns how many. Run on a thread at start-up:
         a replay costs the episode's simulations again (22 s at 128 particles and 6 steps,
         issue 25), so the first request must not pay for it past the client's timeout.
         Meanwhile requests to a session get 409 "being restored" with Retry-After. Idle
         sessions (`idle_s`) are left to the request that brings their robot back."""
+        stopping = stopping or self.stopping
         done = 0
         for session_id in self.store.sessions_to_restore(self.idle_s):
-            if stopping.is_set():
+            if stopping.is_set() or self.stopping.is_set():
                 break
             self._restoring.add(session_id)
             try:
                 with self._lock_for(session_id):
                     self._load(session_id)
                 done += 1
+            except ReplayStopped:
+                log.info("session %s: restore stopped (the server is stopping)", session_id)
+                break
             except Exception as exc:        # left to the first request, which reports it
                 log.warning("session %s: restore failed (%s: %s)", session_id, type(exc).__name__, exc)
             finally:
@@ -240,6 +262,8 @@ class SessionManager:
         try:
             with self._lock_for(session_id):
                 self._load(session_id)
+        except ReplayStopped:
+            log.info("session %s: replay stopped (the server is stopping)", session_id)
         except Exception as exc:  # noqa: BLE001 - left to the next request, which reports it
             log.warning("session %s: replay failed (%s: %s)", session_id, type(exc).__name__, exc)
         finally:

@@ -30,6 +30,10 @@ log = logging.getLogger("tmoc.shard_pools")
 MAX_POOLS = 4
 
 
+class PoolsClosed(RuntimeError):
+    """A lease asked for after close(): the server is stopping."""
+
+
 class ShardPools:
     """The Ray driver and the shard pools of the scenes in use, created on first use.
 
@@ -55,6 +59,7 @@ class ShardPools:
         self._ray_ready = threading.Event()
         self._ray_stop = threading.Event()
         self._ray_error: Exception | None = None
+        self._closed = False
         self.ray_status = "not started"
         self.on_ray_ready = None          # called (from the initialising thread) after ray.init
 
@@ -68,6 +73,7 @@ class ShardPools:
         are recycled after 10 s idle (measured: the server hung ~59 s, then exited, on
         the first request after the starting thread went away).
         """
+        self._refuse_if_closed()
         if not self.own_ray_thread:
             with self._ray_lock:
                 init_ray(self.ray_address)
@@ -85,10 +91,21 @@ class ShardPools:
                 self._ray_thread = threading.Thread(target=self._own_ray, name="tmoc-ray-driver",
                                                     daemon=True)
                 self._ray_thread.start()
-        if not self._ray_ready.wait(timeout):
-            raise RuntimeError(f"ray: not ready after {timeout:.0f} s")
+        deadline = time.monotonic() + timeout
+        while not self._ray_ready.wait(0.1):        # woken by close() too
+            self._refuse_if_closed()
+            if time.monotonic() > deadline:
+                raise RuntimeError(f"ray: not ready after {timeout:.0f} s")
+        self._refuse_if_closed()
         if self._ray_error is not None:
             raise self._ray_error
+
+    def _refuse_if_closed(self) -> None:
+        """After close() nothing may start: a pool made then would call Ray after its
+        shutdown, and Ray's auto-init would start a second cluster as the process stops
+        (seen in issue 38 row 11's reproduction)."""
+        if self._closed:
+            raise PoolsClosed("shard pools: closed (the server is stopping)")
 
     def _own_ray(self) -> None:
         """The thread that starts Ray, then keeps it alive until close()."""
@@ -124,6 +141,7 @@ class ShardPools:
         key = self._key(scene, n_blocks, options)
         self.ensure_ray()
         with self._cond:
+            self._refuse_if_closed()
             while key not in self._pools and len(self._pools) >= self.max_pools:
                 idle = [k for k in self._pools if self._users[k] == 0]
                 if idle:
@@ -132,6 +150,7 @@ class ShardPools:
                     del self._users[victim], self._last_used[victim]
                 else:
                     self._cond.wait(timeout=1.0)
+                    self._refuse_if_closed()
             fresh = key not in self._pools
             if fresh:
                 self._pools[key] = ShardPool(key.domain, key.physics_options(),
@@ -180,8 +199,11 @@ class ShardPools:
         self.close()
 
     def close(self) -> None:
-        """Close every pool; stop Ray if this object's thread started it."""
+        """Close every pool; stop Ray if this object's thread started it. Leases
+        refused from here on (PoolsClosed)."""
         with self._cond:
+            self._closed = True
+            self._cond.notify_all()
             for pool in self._pools.values():
                 try:
                     pool.close()
@@ -190,8 +212,16 @@ class ShardPools:
             self._pools.clear()
             self._users.clear()
         self._ray_stop.set()                 # the owner thread shuts Ray down
-        if self._ray_thread is not None:
+        if self._ray_thread is None:
+            return
+        if self._ray_ready.is_set():
             self._ray_thread.join(timeout=30)
+        else:
+            # Still inside ray.init (3-5 s on 2 cores), which cannot be interrupted: not
+            # waited for, so a SIGTERM at start-up ends the server at once (issue 38 row
+            # 11). The processes it started share the process's fate (Ray starts them with
+            # a parent-death signal), as after kill -9.
+            log.info("ray was still starting: not waited for")
 
 
-__all__ = ["MAX_POOLS", "ShardPools"]
+__all__ = ["MAX_POOLS", "PoolsClosed", "ShardPools"]
