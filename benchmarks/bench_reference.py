@@ -2,6 +2,7 @@
 
     python benchmarks/bench_reference.py RUN_DIR [--grid 81] [--refine all|final|none]
                                          [--draws 2000] [--out FILE] [--ray-address ADDR]
+                                         [--symbolic declared|learned]
 
 Re-filters a `tmoc run --out RUN_DIR` offline (coordinator/experiments/reference.py): every
 recorded step re-simulated for every row of an exact grid over the prior of L (one
@@ -84,6 +85,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--seed", type=int, default=0, help="seed of the prior draws")
     p.add_argument("--out", default=None, help="the JSON to write (default RUN_DIR/reference.json)")
     p.add_argument("--ray-address", default=None, help="join a running Ray cluster")
+    p.add_argument("--symbolic", default="declared",
+                   help="declared (the run's match model) | learned (its error rate unknown per action "
+                        "kind, marginalised per row)")
     args = p.parse_args(argv)
     out = Path(args.out) if args.out else Path(args.run_dir) / "reference.json"
     try:
@@ -91,7 +95,7 @@ def main(argv: list[str] | None = None) -> int:
         if not out.parent.is_dir():
             raise RefilterError(f"--out: {out.parent} is not a directory")
         ref = reference_posterior(args.run_dir, grid=args.grid, refine=args.refine, draws=args.draws,
-                                  seed=args.seed, ray_address=args.ray_address)
+                                  seed=args.seed, ray_address=args.ray_address, symbolic=args.symbolic)
     except RefilterError as exc:
         print(f"bench_reference: error: {exc}", file=sys.stderr)
         return 2

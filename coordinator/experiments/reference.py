@@ -3,7 +3,8 @@
 ``reference_posterior(run_dir)`` replays every step of ``run_dir/steps.jsonl`` for a fixed
 set of rows of L with the simulate call the session uses (start configuration, commanded
 trajectory, the step's transit end) and scores each with the session's likelihood under
-the run's declared settings: the symbolic match (``match``, ``error_rate``) plus the
+the run's declared settings: the symbolic match (``match``, ``error_rate``, and with the
+learned rate the exact marginal over it, per row) plus the
 weighed channels at the DECLARED sensor sigma with the run's ``outlier_rate`` (no online
 model-error widening, no tempering, no resampling: Bayes under the declared observation
 model). For one dimension of L the rows are an exact grid over the prior (midpoint rule,
@@ -19,7 +20,7 @@ from typing import Callable, Literal
 
 import numpy as np
 
-from ..particle_filter.belief import gaussian_log_likelihood, logsumexp, symbolic_log_likelihood
+from ..particle_filter.belief import gaussian_log_likelihood, logsumexp
 from ..particle_filter.likelihood import OUTLIER_WIDTH_SIGMAS, robust_log_likelihood
 
 __all__ = ["RefilterError", "entries", "judge", "load_run", "reference_posterior", "score"]
@@ -73,16 +74,45 @@ def _array(values) -> np.ndarray:
     return np.array([np.nan if v is None else v for v in values], dtype=np.float64)
 
 
-def step_loglik(config, channels: np.ndarray, sigma: np.ndarray, step: dict, res: dict) -> np.ndarray:
-    """log p(step's outcome | row) for every simulated row (the session's likelihood at the
-    declared sensor sigma): the symbolic match of ``Session._symbolic_loglik`` plus the
-    weighed channels of ``Reweighting._measurement_ll`` without model-error widening."""
+def learned_rate_prior(error_rate: float) -> tuple[float, float]:
+    """Beta(1, (1 - r) / r): mean r (the declared rate), worth one disagreement in 1 / r."""
+    return 1.0, (1.0 - error_rate) / error_rate
+
+
+def beta_bernoulli_log_predictive(agreed: np.ndarray, n_agreed: np.ndarray, n_disagreed: np.ndarray,
+                                  a0: float, b0: float) -> np.ndarray:
+    """log p(agreed or not | the row's earlier agreements and disagreements) with the error
+    rate e ~ Beta(a0, b0) marginalised: summed over steps, the Beta-function marginal."""
+    p_agree = (b0 + n_agreed) / (a0 + b0 + n_agreed + n_disagreed)
+    return np.where(np.asarray(agreed, dtype=bool), np.log(p_agree), np.log1p(-p_agree))
+
+
+def step_agreed(config, step: dict, res: dict) -> np.ndarray:
+    """Whether each simulated row's symbolic outcome matched the step's (``match``)."""
     observed, expected = frozenset(step["state_after"]), frozenset(step["expected"])
     if config.match == "state":
-        ll = symbolic_log_likelihood(observed, res["states"], config.error_rate)
+        return np.array([frozenset(s) == observed for s in res["states"]], dtype=bool)
+    real_ok = observed == expected
+    return np.array([(frozenset(s) == expected) == real_ok for s in res["states"]], dtype=bool)
+
+
+def step_loglik(config, channels: np.ndarray, sigma: np.ndarray, step: dict, res: dict,
+                counts: dict | None = None) -> np.ndarray:
+    """log p(step's outcome | row) for every simulated row (the session's likelihood at the
+    declared sensor sigma): the symbolic match of ``Session._symbolic_loglik`` plus the
+    weighed channels of ``Reweighting._measurement_ll`` without model-error widening.
+    With `counts` ({kind: (agreed, disagreed)} per row, updated here) the symbolic part is
+    that of another observation model, an error rate unknown per action kind with a
+    Beta(1, (1 - r) / r) prior (r = ``error_rate``), marginalised exactly: each row's
+    Beta-Bernoulli predictive given its own earlier agreements of the action's kind."""
+    agreed = step_agreed(config, step, res)
+    if counts is not None:
+        kind = step["action"].split("(", 1)[0]
+        n_ok, n_bad = counts.get(kind, (np.zeros(agreed.size), np.zeros(agreed.size)))
+        ll = beta_bernoulli_log_predictive(agreed, n_ok, n_bad, *learned_rate_prior(config.error_rate))
+        counts[kind] = (n_ok + agreed, n_bad + ~agreed)
     else:
-        flag = lambda s: frozenset({"success"}) if s == expected else frozenset()
-        ll = symbolic_log_likelihood(flag(observed), [flag(s) for s in res["states"]], config.error_rate)
+        ll = np.where(agreed, math.log1p(-config.error_rate), math.log(config.error_rate))
     if not (config.use_measurements and channels.size):
         return ll
     obs, pred = _array(step["measurements"])[channels], np.asarray(res["measurements"])[:, channels]
@@ -94,10 +124,11 @@ def step_loglik(config, channels: np.ndarray, sigma: np.ndarray, step: dict, res
 def replay(simulate: SimulateFn, model: dict, steps: list[dict], rows: np.ndarray) -> np.ndarray:
     """(S, N) log-likelihood of every step for every row of L (one simulate call a step)."""
     out = np.zeros((len(steps), len(rows)))
+    counts = {} if model.get("symbolic") == "learned" else None     # per row and action kind
     for k, step in enumerate(steps):
         res = simulate(_array(step["configuration_before"]), rows, step["action"],
                        np.array(step["trajectory"]["points"], dtype=np.float64), float(step["transit_end"]))
-        out[k] = step_loglik(model["config"], model["channels"], model["sigma"], step, res)
+        out[k] = step_loglik(model["config"], model["channels"], model["sigma"], step, res, counts)
     return out
 
 
@@ -177,22 +208,28 @@ def _model(config) -> dict:
 
 
 def reference_posterior(run_dir, *, grid: int = DEFAULT_GRID, refine: Refine = "all", draws: int = DEFAULT_DRAWS,
-                        seed: int = 0, pool=None, ray_address: str | None = None) -> dict:
+                        seed: int = 0, pool=None, ray_address: str | None = None,
+                        symbolic: Literal["declared", "learned"] = "declared") -> dict:
     """The exact posterior over L of a recorded run, after its last step and after every
     episode (``episodes``). `grid`: cells of the 1-D grid and of its refinements; `refine`:
     a refined grid for every snapshot ("all": each re-simulates the steps it has seen),
     for the final posterior only ("final": the episodes' on the coarse grid) or none;
     `draws`: prior draws for 2+ dimensions (seeded by `seed`).
     `pool`: a ShardPool or a simulate callable; None: a pool on local Ray (or
-    `ray_address`) like ``tmoc run``'s. RefilterError for what is not a replayable run."""
+    `ray_address`) like ``tmoc run``'s. `symbolic`: the run's declared match model, or
+    "learned": the same with its error rate unknown per action kind and marginalised
+    (``step_loglik``), to ask whether a learned rate would have judged the run otherwise.
+    RefilterError for what is not a replayable run."""
     config, steps, episodes = load_run(run_dir)
+    if symbolic not in ("declared", "learned"):
+        raise RefilterError(f"symbolic: declared or learned (got {symbolic!r})")
     if grid < 2:
         raise RefilterError(f"grid: at least 2 cells (got {grid})")
     if draws < 2:
         raise RefilterError(f"draws: at least 2 (got {draws})")
     if refine not in ("all", "final", "none"):
         raise RefilterError(f"refine: all, final or none (got {refine!r})")
-    model = _model(config)
+    model = {**_model(config), "symbolic": symbolic}
     if pool is not None:
         simulate = pool.simulate if hasattr(pool, "simulate") else pool
         return _reference(simulate, model, steps, len(episodes), grid, refine, draws, seed)
@@ -225,7 +262,8 @@ def _reference(simulate: SimulateFn, model: dict, steps: list[dict], n_episodes:
         if k not in seen:
             seen[k] = post(k)
         snaps.append({"episode": e, "steps": k, "mean": seen[k]["mean"], "std": seen[k]["std"]})
-    return {"method": method, "names": model["names"], "truth": model["truth"].tolist(),
+    return {"method": method, "symbolic": model.get("symbolic", "declared"), "names": model["names"],
+            "truth": model["truth"].tolist(),
             "prior_mean": ((model["low"] + model["high"]) / 2).tolist(),
             "prior_std": ((model["high"] - model["low"]) / math.sqrt(12.0)).tolist(),
             **seen[len(steps)], "steps": len(steps), "episodes": snaps, "wall_s": time.perf_counter() - t0}

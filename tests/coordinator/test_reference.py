@@ -189,3 +189,33 @@ def test_the_reference_of_a_real_run_holds_the_truth(ray_cluster, tmp_path, caps
     run = json.loads((out / "result.json").read_text())["episodes"][-1]["posterior"]
     s = score(run["mean"], run["std"], ref["mean"], ref["std"], ref["truth"], prior_std=ref["prior_std"])
     assert set(judge(s)) >= {"pass", "reasons"}
+
+
+class ThresholdWorlds:
+    """simulate(): rows over 50 mm fail the action (as the robot did), the rest hold."""
+
+    def simulate(self, start, rows, action, trajectory, start_time) -> dict:
+        held = frozenset({"is_holding(r,b1)"})
+        return {"states": [frozenset() if r[0] > 0.050 else held for r in rows],
+                "measurements": np.full((len(rows), 9), np.nan)}
+
+
+def test_a_learned_error_rate_is_marginalised_per_row(tmp_path):
+    """`symbolic="learned"`: the rate unknown per action kind, Beta(1, 19) for 0.05,
+    marginalised per row. Five failures that only rows over 50 mm predict: under the declared
+    rate the rows below keep 0.05^5 / 0.95^5 of their prior mass against the rows above; with
+    the rate learned, B(6, 19) / B(1, 24) (each row's Beta-Bernoulli marginal)."""
+    run = _fake_run(tmp_path / "run", use_measurements=False)
+    shares = {}
+    for symbolic in ("declared", "learned"):
+        ref = reference_posterior(run, grid=40, refine="none", pool=ThresholdWorlds(), symbolic=symbolic)
+        assert ref["symbolic"] == symbolic
+        x, w = np.array(ref["points"]), np.array(ref["weights"])
+        below, above = w[x < 0.050].sum() / (x < 0.050).sum(), w[x > 0.050].sum() / (x > 0.050).sum()
+        shares[symbolic] = below / above
+    assert shares["declared"] == pytest.approx((0.05 / 0.95) ** 5, rel=1e-6)
+    log_b = lambda a, b: math.lgamma(a) + math.lgamma(b) - math.lgamma(a + b)
+    assert shares["learned"] == pytest.approx(math.exp(log_b(6, 19) - log_b(1, 24)), rel=1e-6)
+    assert shares["learned"] > 30 * shares["declared"]        # the gap takes part of the blame
+    with pytest.raises(RefilterError, match="symbolic: declared or learned"):
+        reference_posterior(run, grid=4, pool=ThresholdWorlds(), symbolic="maybe")
