@@ -109,10 +109,12 @@ def task_half(name: str):
     return _TASKS[name]
 
 
-def load(name: str, **options) -> Domain:
-    """Both halves of `name` (or ``name-vN``); `options` go to the physics half (e.g. n_blocks=8)."""
+def load(name: str, engine: str | None = None, **options) -> Domain:
+    """Both halves of `name` (or ``name-vN``); `options` go to the physics half (e.g.
+    n_blocks=8), and `engine` names the engine its worlds are built in (None: the default),
+    so a domain whose Y or calibration depends on the engine sees the run's (issue 39)."""
     s = spec(name)
-    physics = physics_registry.load(s.name, **options)
+    physics = physics_registry.load(s.name, engine=engine, **options)
     return Domain(s, physics, task_half(s.name), dict(options))
 
 

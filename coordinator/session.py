@@ -71,7 +71,7 @@ class Session:
     def __init__(self, config: RunConfig, shard_pool=None) -> None:
         self.config = config
         self.agent = agent_spec(config.agent)
-        joined = load_domain(config.domain, n_blocks=config.n_blocks, **config.options)
+        joined = load_domain(config.domain, engine=config.engine, n_blocks=config.n_blocks, **config.options)
         self.domain = joined.physics          # scene, Y, Y^-1, measurements
         self.task = joined.task               # symbolic model, T's contexts, utility, planner
         self.n_blocks = config.n_blocks

@@ -195,7 +195,7 @@ def _model(config) -> dict:
 
     from ..domains import load as load_domain, property_space
 
-    physics = load_domain(config.domain, n_blocks=config.n_blocks, **config.options).physics
+    physics = load_domain(config.domain, engine=config.engine, n_blocks=config.n_blocks, **config.options).physics
     L, per_block = property_space(physics), bool(config.sizes_variation)
     low, high = L.bounds(config.n_blocks, per_block)
     truth = L.truth_row(config.truth_values(), config.n_blocks, per_block, {"size": SIZES_VARIATION_SCALE})

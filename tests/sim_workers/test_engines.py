@@ -30,6 +30,18 @@ def test_unknown_engine_is_named_with_the_known_ones():
     assert engines.check_engine(None) == "pybullet"      # installed here: every result's engine
 
 
+@pytest.mark.parametrize("engine", [None, *ENGINES])
+def test_the_session_s_physics_half_learns_the_run_s_engine(engine):
+    """Issue 39 item 1: the session built its physics half (Y, Y^-1, measurements) without
+    the run's engine although the docs say runs set it, so a domain whose Y depends on the
+    engine silently planned for the default one under --engine mujoco."""
+    from coordinator.run_config import RunConfig
+    from coordinator.session import Session
+
+    session = Session(RunConfig(engine=engine, particles=2, episodes=1, n_blocks=2))
+    assert session.domain.engine == engine
+
+
 def test_a_missing_engine_names_its_package(monkeypatch):
     monkeypatch.setattr(engines.registry, "installed", lambda e: e != "pybullet")
     with pytest.raises(engines.EngineError, match="the pybullet engine needs the Python package 'pybullet'"):
