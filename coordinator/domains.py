@@ -115,7 +115,8 @@ def load(name: str, engine: str | None = None, **options) -> Domain:
     so a domain whose Y or calibration depends on the engine sees the run's (issue 39)."""
     s = spec(name)
     physics = physics_registry.load(s.name, engine=engine, **options)
-    return Domain(s, physics, task_half(s.name), dict(options))
+    # the engine stays among the options: checks rebuild worlds from them
+    return Domain(s, physics, task_half(s.name), {**options, **({"engine": engine} if engine else {})})
 
 
 def describe(name: str, **options) -> dict:
