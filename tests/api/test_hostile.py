@@ -284,6 +284,25 @@ def test_a_budget_over_the_server_s_cap_is_refused_by_name(client):
     assert r.status_code == 422 and "max_runtime_s" in r.json()["message"]
 
 
+def _session_mid_episode(srv: Server, robot: SimulatedReality, particles: int, steps: int) -> tuple[str, dict]:
+    """A robot session of `particles` with `steps` observed steps of its first episode:
+    (its id, the pending step), so a restart must replay those steps."""
+    with srv.client() as c:
+        obs = robot.start_episode(np.random.default_rng(0))
+        r = c.post("/v1/sessions", json={"particles": particles, "episodes": 1, "max_steps": 20, "seed": 4,
+                                         "observation": {"configuration": obs.configuration.to_dict()}})
+        assert r.status_code == 201, r.text
+        sid, step = r.json()["id"], r.json()["next"]
+        for _ in range(steps):
+            out = robot.execute(np.array(step["trajectory"]), step["action"])
+            r = c.post(f"/v1/sessions/{sid}/observations",
+                       json={"action": step["action"], "step_id": step["step_id"],
+                             "configuration": out.configuration.to_dict()})
+            assert r.status_code == 200, r.text
+            step = r.json()["next"]
+    return sid, step
+
+
 def test_after_a_restart_a_session_is_restored_in_the_background(tmp_path):
     """Row 8: the first request after a restart replayed the episode itself (22.4 s at 128
     particles, past the client's timeout). Sessions are replayed on a thread at start-up;
@@ -295,19 +314,7 @@ def test_after_a_restart_a_session_is_restored_in_the_background(tmp_path):
     robot = SimulatedReality("container", {"n_blocks": 8}, {"block_sizes": np.full(8, 0.050)})
     srv = Server(db, token=None).start()
     try:
-        with srv.client() as c:
-            obs = robot.start_episode(np.random.default_rng(0))
-            r = c.post("/v1/sessions", json={"particles": 32, "episodes": 1, "max_steps": 20, "seed": 4,
-                                             "observation": {"configuration": obs.configuration.to_dict()}})
-            assert r.status_code == 201, r.text
-            sid, step = r.json()["id"], r.json()["next"]
-            for _ in range(3):              # a replay of ~5 s on 2 cores (48 x 4: 10.3 s)
-                out = robot.execute(np.array(step["trajectory"]), step["action"])
-                r = c.post(f"/v1/sessions/{sid}/observations",
-                           json={"action": step["action"], "step_id": step["step_id"],
-                                 "configuration": out.configuration.to_dict()})
-                assert r.status_code == 200, r.text
-                step = r.json()["next"]
+        sid, step = _session_mid_episode(srv, robot, particles=32, steps=3)   # a replay of ~5 s on 2 cores
         srv.stop()
         srv = Server(db, token=None).start()
         with srv.client() as c:
@@ -351,19 +358,7 @@ def test_a_sigterm_during_the_start_up_restore_ends_the_server_at_once(tmp_path)
     robot = SimulatedReality("container", {"n_blocks": 8}, {"block_sizes": np.full(8, 0.050)})
     srv = Server(db, token=None).start()
     try:
-        with srv.client() as c:
-            obs = robot.start_episode(np.random.default_rng(0))
-            r = c.post("/v1/sessions", json={"particles": 96, "episodes": 1, "max_steps": 20, "seed": 4,
-                                             "observation": {"configuration": obs.configuration.to_dict()}})
-            assert r.status_code == 201, r.text
-            sid, step = r.json()["id"], r.json()["next"]
-            for _ in range(4):              # a replay of ~8 s on 2 cores once Ray is up
-                out = robot.execute(np.array(step["trajectory"]), step["action"])
-                r = c.post(f"/v1/sessions/{sid}/observations",
-                           json={"action": step["action"], "step_id": step["step_id"],
-                                 "configuration": out.configuration.to_dict()})
-                assert r.status_code == 200, r.text
-                step = r.json()["next"]
+        sid, step = _session_mid_episode(srv, robot, particles=96, steps=4)   # ~8 s once Ray is up
         srv.stop()
         for ray_up in (False, True):
             srv = Server(db, token=None).start()
