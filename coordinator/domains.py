@@ -138,6 +138,7 @@ def describe(name: str, **options) -> dict:
         "task": d.spec.task,
         "objects": list(phys.object_names),
         "n_blocks": int(sp.n_blocks),
+        "n_objects": int(sp.n_blocks),      # the domain's default object count (n_blocks: its old name)
         "properties": [{"name": n, "unit": u, "prior": {"kind": "uniform", "low": float(lo), "high": float(hi)},
                         "default_truth": float(t)}
                        for n, u, lo, hi, t in zip(L.names, L.units, L.low, L.high, L.truth)],
@@ -162,7 +163,7 @@ def measurement_channels(phys) -> list[dict]:
 
 
 _OPTION_TYPES = (bool, int, float, str, type(None))
-_NOT_OPTIONS = ("n_blocks", "true_size")
+_NOT_OPTIONS = ("n_blocks", "n_objects", "true_size")
 
 
 def options_of(phys) -> dict:
@@ -230,7 +231,9 @@ def checked_options(name: str, options: dict, n_blocks: int | None = None) -> tu
     known = _option_defaults(name)
     for key, value in list(options.items()):
         if key in _NOT_OPTIONS:
-            raise ValueError(f"options.{key}: set {'n_blocks' if key == 'n_blocks' else 'truth.size (--true-size)'} instead")
+            raise ValueError(f"options.{key}: " + (
+                "not an option; the object count has its own setting (--objects N; n_objects over HTTP)"
+                if key in ("n_blocks", "n_objects") else "set truth.size (--true-size) instead"))
         if key not in known:
             raise ValueError(f"options.{key}: not an option of domain {name!r} "
                              f"(options: {', '.join(sorted(known))})")

@@ -4,7 +4,7 @@ from __future__ import annotations
 from typing import Annotated, Literal
 
 import numpy as np
-from pydantic import AfterValidator, BaseModel, ConfigDict, Field, PrivateAttr, model_validator
+from pydantic import AfterValidator, AliasChoices, BaseModel, ConfigDict, Field, PrivateAttr, model_validator
 
 from planner.blocks.model import DEFAULT_COSTS
 from sim_workers.domains import DEFAULT_DOMAIN, Scene
@@ -47,10 +47,27 @@ class Costs(BaseModel):
     all_delivered: float = Field(DEFAULT_COSTS["all_delivered"], ge=0, le=1e4)
 
 
+def one_object_count(data):
+    """A settings mapping with the object count under one name: ``n_objects`` and its old
+    name ``n_blocks`` both given must agree (ValueError naming n_objects otherwise)."""
+    if isinstance(data, dict) and "n_objects" in data and "n_blocks" in data:
+        if data["n_objects"] != data["n_blocks"]:
+            raise ValueError(f"n_objects: {data['n_objects']!r} disagrees with n_blocks "
+                             f"{data['n_blocks']!r} (one name for the object count is enough)")
+        data = {k: v for k, v in data.items() if k != "n_blocks"}
+    return data
+
+
 class RunConfig(BaseModel):
     """Everything that determines a run; with the same values a run is reproducible."""
 
     model_config = ConfigDict(extra="forbid")
+
+    @model_validator(mode="before")
+    @classmethod
+    def _one_object_count(cls, data):
+        return one_object_count(data)
+
     domain: DomainName = DEFAULT_DOMAIN
     agent: AgentName = "tmoc"
     particles: int = Field(32, ge=1, le=5000)
@@ -71,7 +88,9 @@ class RunConfig(BaseModel):
     kld_bin: float = Field(0.1, ge=0.001, le=1)
     episodes: int = Field(8, ge=1, le=100000)
     seed: int = Field(0, ge=0, le=2**63 - 1)
-    n_blocks: int = Field(8, ge=1, le=16)
+    # The object count (issue 39): unset, the domain's own (its physics spec's n_blocks;
+    # 8 for the built-in block worlds); `n_objects` is the domain-neutral spelling.
+    n_blocks: int | None = Field(None, ge=1, le=16, validation_alias=AliasChoices("n_blocks", "n_objects"))
     true_size: float = Field(0.045, ge=0.02, le=0.08)
     sizes_variation: bool = False
     # The paper's real-robot run "with the sizes given": the belief is a point mass at the
@@ -191,6 +210,7 @@ class RunConfig(BaseModel):
         from coordinator.domains import checked_options, options_of
 
         self.options, phys = checked_options(self.domain, dict(self.options), self.n_blocks)
+        self.n_blocks = int(phys.n_blocks)
         L = phys.L
         self._size_in_L = "size" in L.names
         if "size" in self.truth and not self._size_in_L:
@@ -357,6 +377,9 @@ def stored_run_config(fields: dict) -> RunConfig:
     `sim_discount` T's undiscounted simulated counts, and one without the sensor fields of
     issue 37 the simulated reality's exact readings (PRE_SENSOR_NOISE)."""
     fields = dict(fields)
+    # Before the domain's own default count: every run had 8 objects.
+    if "n_objects" not in fields:
+        fields.setdefault("n_blocks", 8)
     fields.setdefault("particle_budget", "fixed")
     fields.setdefault("sim_discount", "none")
     # Before issue 37's filter: the lock-in monitor redrew from the prior.

@@ -6,7 +6,7 @@ maps to one is the domain's data (``planner.domain.TaskDomain.contexts`` and
 domain does not list is an error, never a silent None. Without them, T uses the
 container's (below), so existing callers and checkpoints keep working.
 
-Contexts of the container domain (design section 3):
+Contexts of the container domain (docs/BUILTIN_DOMAINS.md, "The container domain"):
 
 * ``("pickup", 0)`` for every pickup (one context);
 * ``("stack", k)``, k = blocks already in the container, 0 .. n_blocks - 1;

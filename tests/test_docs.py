@@ -112,3 +112,29 @@ def test_every_command_help_runs(command, capsys):
     with pytest.raises(SystemExit) as exc:
         main([command, "--help"])
     assert exc.value.code == 0 and command in capsys.readouterr().out
+
+
+# Pointers to files a clone does not have (issue 39): the design the project started from
+# lived beside the repository, and docs and comments pointed to it.
+_OUTSIDE = re.compile("|".join([r"\.\./" + "shared", "DESIGN" + r"\.md", r"design (sec\.|section|§)"]), re.I)
+_TEXT = (".py", ".md", ".toml", ".cfg", ".txt", ".js", ".html", ".css", ".yaml", ".yml", ".sh", ".json")
+_NOT_OURS = {".git", "venv", ".venv", "build", "dist", "runs", "node_modules", "__pycache__"}
+
+
+def _repository_files() -> list[Path]:
+    out = []
+    for path in REPO.rglob("*"):
+        rel = path.relative_to(REPO)
+        if (path.is_file() and (path.suffix in _TEXT or rel.parts[0] == ".ci")
+                and not _NOT_OURS & set(rel.parts) and not any(p.endswith(".egg-info") for p in rel.parts)):
+            out.append(path)
+    return out
+
+
+def test_nothing_refers_to_files_outside_the_repository():
+    files = _repository_files()
+    assert len(files) > 100
+    hits = [f"{p.relative_to(REPO)}:{n}: {line.strip()[:100]}"
+            for p in files for n, line in enumerate(p.read_text(errors="replace").splitlines(), 1)
+            if _OUTSIDE.search(line)]
+    assert not hits, "\n".join(hits)

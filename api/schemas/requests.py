@@ -11,10 +11,10 @@ from __future__ import annotations
 
 from typing import Annotated, Any, Literal
 
-from pydantic import AfterValidator, BaseModel, ConfigDict, Field, create_model, model_validator
+from pydantic import AfterValidator, AliasChoices, BaseModel, ConfigDict, Field, create_model, model_validator
 
 from coordinator.domains import DEFAULT_DOMAIN
-from coordinator.run_config import Costs, RunConfig, field_bounds, stored_run_config
+from coordinator.run_config import Costs, RunConfig, field_bounds, one_object_count, stored_run_config
 
 # Configuration arrays: metres / radians / unit quaternions; generous but finite bounds.
 Coord = Annotated[float, Field(ge=-100.0, le=100.0, allow_inf_nan=False)]
@@ -35,7 +35,8 @@ class StrictCosts(Costs):
 
 # Every integer field of RunConfig (min_particles was missed when listed by hand: 1027.0
 # was refused while 1027 was taken).
-_INT_FIELDS = tuple(name for name, f in RunConfig.model_fields.items() if f.annotation in (int, int | None))
+_INT_FIELDS = tuple(name for name, f in RunConfig.model_fields.items()
+                    if f.annotation in (int, int | None)) + ("n_objects",)
 
 
 class _SpecBase(BaseModel):
@@ -48,6 +49,7 @@ class _SpecBase(BaseModel):
     @model_validator(mode="before")
     @classmethod
     def _integral_floats(cls, data: Any) -> Any:
+        data = one_object_count(data)
         if isinstance(data, dict) and any(isinstance(data.get(k), float) for k in _INT_FIELDS):
             data = dict(data)
             for k in _INT_FIELDS:
@@ -152,11 +154,15 @@ def _per_domain(name: str, doc: str, fields: dict, with_truth: bool) -> Any:
     for d in names():
         opts, truth = _domain_models(d)
         own = {**fields, "options": (opts, Field(default_factory=opts, description=opts.__doc__))}
-        top = load(d).physics.max_blocks
+        phys = load(d).physics
+        top = phys.max_blocks
         if "n_blocks" in own:
-            info = own["n_blocks"][1]
-            own["n_blocks"] = (int, Field(min(info.default, top), ge=1, le=int(top),
-                                          description=f"blocks in the scene (1..{top} in {d})"))
+            # The domain's own count by default (issue 39); `n_objects` is the neutral name.
+            own["n_blocks"] = (int, Field(min(int(phys.n_blocks), top), ge=1, le=int(top),
+                                          validation_alias=AliasChoices("n_objects", "n_blocks"),
+                                          description=f"objects in the scene (1..{top} in {d}; "
+                                                      f"default {min(int(phys.n_blocks), top)}); "
+                                                      f"also spelled n_blocks"))
         if with_truth:
             own["truth"] = (truth, Field(default_factory=truth, description=truth.__doc__))
         if "reality_fail" in own:        # the schema names the domain's actions (issue 24)

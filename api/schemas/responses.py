@@ -233,7 +233,9 @@ class DomainView(BaseModel):
     physics: str
     task: str
     objects: list[str]
-    n_blocks: int
+    n_blocks: int = Field(description="the domain's default object count (old name of n_objects)")
+    n_objects: int = Field(description="the domain's default object count: a task or session "
+                                       "without `n_objects` has this many")
     properties: list[dict[str, Any]] = Field(description="L: name, unit, prior, default truth")
     measurements: dict[str, Any]
     actions: list[str]

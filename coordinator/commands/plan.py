@@ -23,7 +23,6 @@ from sim_workers.domains import DEFAULT_DOMAIN
 
 from . import UsageError
 
-DEFAULT_BLOCKS = 8
 # Planner fields -> the flag a user of this command wrote them with.
 _FLAGS = {"pickup": "--p-pickup", "stack": "--p-stack", "push": "--p-push", "costs": "--cost",
           "block_classes": "--class", "max_steps": "--max-steps", "time_limit": "--time-limit"}
@@ -35,8 +34,8 @@ def register(subparsers) -> None:
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--domain", default=DEFAULT_DOMAIN, metavar="NAME",
                    help="planning domain (default: container)")
-    p.add_argument("--blocks", default=None, metavar="N",
-                   help=f"number of blocks b1..bN (default: from --state, else {DEFAULT_BLOCKS})")
+    p.add_argument("--blocks", "--objects", default=None, metavar="N",
+                   help="number of objects (default: from --state, else the domain's own count)")
     p.add_argument("--p-pickup", default="1", metavar="P",
                    help="pickup success probability, or CLASS=P,... per block class (default 1)")
     p.add_argument("--p-stack", default=None, metavar="P0,P1,...",
@@ -156,7 +155,8 @@ def run(args: argparse.Namespace) -> int:
             raise UsageError(f"--blocks: {args.blocks} does not match the {n_blocks} blocks "
                              f"in {args.state}")
     else:
-        n_blocks = DEFAULT_BLOCKS if args.blocks is None else _integer("--blocks", args.blocks, 1)
+        n_blocks = (domains.load(args.domain).n_blocks if args.blocks is None
+                    else _integer("--blocks", args.blocks, 1))
         state = task.initial_state(n_blocks)
     transition = {"pickup": _pickup(args.p_pickup),
                   "stack": _probability_list("--p-stack", args.p_stack, n_blocks),

@@ -23,7 +23,8 @@ _FLAG_FIELDS = {"domain": "--domain", "agent": "--agent", "particles": "--partic
                 "min_particles": "--min-particles", "reality_fail": "--reality-fail",
                 "engine": "--engine", "reality_engine": "--reality-engine",
                 "sensor_noise": "--sensor-noise", "sensor_bias": "--sensor-bias",
-                "sensor_tails": "--sensor-tails", "perception_sigma": "--perception-sigma"}
+                "sensor_tails": "--sensor-tails", "perception_sigma": "--perception-sigma",
+                "n_blocks": "--objects"}
 
 
 def register(sub) -> None:
@@ -49,6 +50,9 @@ def register(sub) -> None:
                    help=f"the kld budget's floor (at most --particles) (default {d.min_particles})")
     p.add_argument("--episodes", type=int, default=None, help=f"(default {d.episodes})")
     p.add_argument("--seed", type=int, default=None, help=f"(default {d.seed})")
+    p.add_argument("--objects", "--n-objects", "--blocks", type=int, default=None, dest="n_blocks",
+                   metavar="N", help="objects in the scene (default: the domain's own count, "
+                                     "tmoc domains; 8 for the built-in block worlds)")
     p.add_argument("--true-size", type=float, default=None, help=f"hidden block size, m (default {d.true_size})")
     p.add_argument("--truth", action="append", default=None, metavar="NAME=VALUE[,NAME=VALUE]",
                    help="the hidden truth by the names of L (tmoc domains), e.g. size=0.04,density=2400")
@@ -169,6 +173,8 @@ def parse_options(items: list[str] | None) -> dict:
 def _config(args) -> RunConfig:
     from_file = _config_file(args.config) if args.config else {}
     from_flags = {f: getattr(args, f) for f in _FLAG_FIELDS if getattr(args, f, None) is not None}
+    if "n_blocks" in from_flags:          # the flag wins over the file's count by either name
+        from_file = {k: v for k, v in from_file.items() if k not in ("n_blocks", "n_objects")}
     if "truth" in from_flags:
         from_flags["truth"] = {**from_file.get("truth", {}), **parse_truth(from_flags["truth"])}
     if "options" in from_flags:

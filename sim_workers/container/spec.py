@@ -1,4 +1,4 @@
-"""The container domain's scene as data: geometry, physics settings, locations (design sec. 3)."""
+"""The container domain's scene as data: geometry, physics settings, locations (docs/BUILTIN_DOMAINS.md, "The container domain")."""
 from __future__ import annotations
 
 from dataclasses import dataclass

@@ -33,7 +33,7 @@ UNKNOWN = {"unknown_density": True}
     ({"options": {"force_sigma": 1e-300}}, r"options.force_sigma: 1e-300 N is below 0.001 N"),
     ({"options": {"time_step": 1e-9}}, r"options.time_step: 1e-09 is outside the domain's range"),
     ({"options": {"solver_iterations": 10 ** 9}}, "options.solver_iterations: .* is outside"),
-    ({"options": {"n_blocks": 4}}, "options.n_blocks: set n_blocks"),
+    ({"options": {"n_blocks": 4}}, r"options.n_blocks: not an option; the object count has its own setting \(--objects N"),
     ({"options": {"true_size": 0.04}}, "options.true_size: set truth.size"),
     ({"truth": {"density": 2400.0}, "options": {"density": 700.0}}, "truth.density: 2400.0 disagrees with options.density"),
     ({"truth": {"density": -5.0}}, r"truth.density: -5.0 kg/m\^3 is outside"),

@@ -316,3 +316,87 @@ def test_the_simulated_reality_jitters_every_movable_object(name):
     moved = {i for i in range(len(nominal)) if not np.allclose(placed[i, :2], nominal[i, :2], atol=1e-6)}
     assert moved == set(d.physics.jittered_objects)
     assert {d.physics.object_names[i] for i in moved} >= set(d.physics.block_names) - {"container"}
+
+
+class _ThreeBlocks(ContainerDomain):
+    """A domain whose own object count is 3 (issue 39: runs had 8 whatever it declared)."""
+
+    name = "three_blocks"
+
+    def __init__(self, spec=None, **overrides) -> None:
+        from sim_workers.container.spec import ContainerSpec
+
+        super().__init__(spec or ContainerSpec(n_blocks=3), **overrides)
+
+
+def test_the_object_count_is_the_domains_own_unless_set(capsys, monkeypatch):
+    from api.schemas.requests import task_spec_model
+    from coordinator.run_config import RunConfig, stored_run_config
+    from pydantic import TypeAdapter, ValidationError
+
+    physics_registry.register("three_blocks", _ThreeBlocks)
+    monkeypatch.setitem(domains.BUILTIN, "three_blocks", domains.DomainSpec(
+        "three_blocks", f"{_ThreeBlocks.__module__}:_ThreeBlocks", "planner.container:ContainerTask",
+        "three blocks by default"))
+    try:
+        assert RunConfig(domain="three_blocks").n_blocks == 3
+        assert RunConfig(domain="three_blocks", n_objects=5).n_blocks == 5
+        assert RunConfig().n_blocks == 8                          # the container's own
+        assert stored_run_config({"domain": "three_blocks"}).n_blocks == 8   # dumps before kept 8
+        with pytest.raises(ValidationError, match="n_objects: 2 disagrees with n_blocks 4"):
+            RunConfig(n_objects=2, n_blocks=4)
+        # the CLI: --objects, a config file's n_objects, and the default
+        assert main(["run", "--domain", "three_blocks", "--print-config"]) == 0
+        assert json.loads(capsys.readouterr().out)["n_blocks"] == 3
+        assert main(["run", "--domain", "three_blocks", "--objects", "4", "--print-config"]) == 0
+        assert json.loads(capsys.readouterr().out)["n_blocks"] == 4
+        assert main(["run", "--objects", "17"]) == 2
+        assert "--objects: Input should be less than or equal to 16" in capsys.readouterr().err
+        assert main(["run", "--option", "n_blocks=3"]) == 2
+        assert "(--objects N; n_objects over HTTP)" in capsys.readouterr().err
+        # HTTP: the field defaults to the domain's count, both names are taken
+        spec = TypeAdapter(task_spec_model(64, 10))
+        assert spec.validate_python({"domain": "three_blocks"}).n_blocks == 3
+        assert spec.validate_python({"domain": "three_blocks", "n_objects": 2.0}).n_blocks == 2
+        assert spec.validate_python({"n_blocks": 5}).n_blocks == 5
+        with pytest.raises(ValidationError, match="n_objects"):
+            spec.validate_python({"n_objects": 0})
+        described = domains.describe("three_blocks")
+        assert described["n_objects"] == described["n_blocks"] == 3
+    finally:
+        physics_registry._REGISTRY.pop("three_blocks", None)
+
+
+class _Blind(ContainerDomain):
+    """A domain whose worlds ignore L: every hypothesis is built as the default truth."""
+
+    name = "blind"
+
+    action_poses = PhysicsDomain.action_poses        # Y row by row, through props_from_row
+
+    def props_from_row(self, row):
+        return super().props_from_row(np.asarray(self.L.truth, dtype=np.float64))
+
+
+def test_a_domain_whose_outcomes_ignore_L_fails_conformance_by_name(monkeypatch):
+    """Issue 39: such a domain passed every check (11/11); nothing in it can be learned."""
+    physics_registry.register("blind", _Blind)
+    monkeypatch.setitem(domains.BUILTIN, "blind", domains.DomainSpec(
+        "blind", f"{_Blind.__module__}:_Blind", "planner.container:ContainerTask", "ignores L"))
+    try:
+        results = {r.name: r for r in check_domain("blind", ray_actors=False)}
+        failed = [n for n, r in results.items() if not r.ok]
+        assert failed == ["outcomes_depend_on_L"], {n: results[n].detail for n in failed}
+        assert "do not depend on size across the prior" in results["outcomes_depend_on_L"].detail
+    finally:
+        physics_registry._REGISTRY.pop("blind", None)
+
+
+def test_every_property_of_L_is_varied_by_the_checks():
+    """With the density unknown, the checks move the density over its prior too (they moved
+    only L's first property: a Y or a place() broken at a heavy block went unseen)."""
+    d = domains.load("stack_and_push", unknown_density=True)
+    from coordinator.conformance import check_outcomes_depend_on_L, check_place_keeps_state
+
+    assert "density (by " in check_outcomes_depend_on_L(d)
+    assert "5 values of density" in check_place_keeps_state(d)

@@ -318,6 +318,7 @@ def test_the_plugin_runs_one_episode(with_plugin):
     assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-4000:]
     result = json.loads((out / "result.json").read_text())
     assert result["config"]["domain"] == "toy_tray" and len(result["episodes"]) == 1
+    assert result["config"]["n_blocks"] == 4          # the domain's own count (issue 39: was 8)
     assert 0 < result["episodes"][0]["actions"] <= 8
 
 

@@ -45,7 +45,7 @@ def pushed_until_delivered(p: float, load: int, rebuild: float, costs: dict) -> 
 
 def split_value(first_load: int, stacks: list[int], waiting: int, at_goal: bool,
                 T: dict, costs: dict = COSTS, mean_pick: float | None = None) -> float:
-    """The design's formula for a plan given by the stacks of each trip, written out
+    """The expected-utility formula for a plan given by the stacks of each trip, written out
     independently of the planner: the first trip starts with first_load blocks loaded. A
     failed push's trip is rebuilt: the container brought back, its blocks picked up (at
     `mean_pick` each, by default the one class's expected pickup) and stacked from 0."""
