@@ -52,6 +52,7 @@ def _reasons_ok(broken: dict) -> None:
     assert "tmoc_broken_plugins_physics_gone" in broken["hollow"]
 
 
+@pytest.mark.slow
 def test_tmoc_domains_lists_the_good_ones_and_the_broken_ones(plugin_path, tmp_path):
     proc = subprocess.run([*tmoc(), "domains", "--json"], env=_env(plugin_path), cwd=tmp_path,
                           capture_output=True, text=True, timeout=300)
@@ -69,6 +70,7 @@ def test_tmoc_domains_lists_the_good_ones_and_the_broken_ones(plugin_path, tmp_p
 
 
 @pytest.mark.timeout(300)
+@pytest.mark.slow
 def test_the_service_starts_and_serves_every_other_domain(plugin_path, tmp_path, monkeypatch):
     monkeypatch.setenv("PYTHONPATH", _env(plugin_path)["PYTHONPATH"])
     server = Server(tmp_path / "tasks.db").start()

@@ -50,6 +50,7 @@ def export_server(tmp_path_factory):
 
 
 @pytest.mark.timeout(300)
+@pytest.mark.slow
 def test_an_export_starts_at_once_and_is_kept(export_server):
     srv = export_server
     t0 = time.perf_counter()
@@ -75,6 +76,7 @@ def test_an_export_starts_at_once_and_is_kept(export_server):
 
 
 @pytest.mark.timeout(300)
+@pytest.mark.slow
 def test_many_exports_do_not_stall_the_service(export_server):
     srv = export_server
     health: list[float] = []

@@ -26,6 +26,7 @@ def _guess(c: httpx.Client, n: int, **headers) -> list[int]:
 
 
 @pytest.mark.timeout(300)
+@pytest.mark.slow
 def test_bearer_guesses_are_throttled_per_address(tmp_path):
     srv = Server(tmp_path / "auth.sqlite").start()
     try:
@@ -55,6 +56,7 @@ def test_bearer_guesses_are_throttled_per_address(tmp_path):
 
 
 @pytest.mark.timeout(300)
+@pytest.mark.slow
 def test_a_trusted_proxys_header_names_the_address(tmp_path):
     srv = Server(tmp_path / "proxy.sqlite", "--forwarded-allow-ips", "127.0.0.5").start()
     try:

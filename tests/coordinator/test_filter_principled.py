@@ -123,6 +123,7 @@ def test_a_confidently_wrong_belief_moves_to_the_readings(start):
         assert abs(mean - 0.040) < 0.0015 and abs(mean - 0.040) < 3 * std + 0.0005, (seed, mean, std)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("n", [8, 16])
 def test_the_posterior_is_calibrated_against_the_exact_one(n):
     """Eighty readings of the opening with the sensor's 2 mm noise, truths across the prior,

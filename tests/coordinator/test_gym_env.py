@@ -99,6 +99,7 @@ def test_the_hidden_truth_comes_from_the_seed_or_is_given():
         TmocEnv("stack_and_push", n_blocks=2, truth=[0.05, 900.0])
 
 
+@pytest.mark.slow
 def test_tabular_q_learns_the_task_where_the_prior_mean_grounds_it():
     """Q-learning over symbolic states (grounded at the prior's mean, here the truth):
     greedy after 30 episodes it reaches the goal every time at the plan's utility."""

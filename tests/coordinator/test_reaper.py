@@ -11,7 +11,8 @@ import pytest
 
 from coordinator.reaper import CLEAN, alive, descendants
 
-pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
+pytestmark = [pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc"),
+              pytest.mark.slow]          # process trees of their own
 
 # A stand-in server: starts a grandchild that would outlive it, then waits.
 SERVER = ("import subprocess, sys, time; subprocess.Popen([sys.executable, '-c', "

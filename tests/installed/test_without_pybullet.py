@@ -18,7 +18,7 @@ import pytest
 
 from tests.installed.test_installed_product import fresh_venv, run_in
 
-pytestmark = pytest.mark.timeout(1800)
+pytestmark = [pytest.mark.timeout(1800), pytest.mark.slow]   # a venv of its own
 
 
 def requirements(wheel: Path) -> list[str]:
