@@ -12,6 +12,9 @@ not a second copy of any domain's scene.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import lru_cache
+
+import numpy as np
 
 Vec3 = tuple[float, float, float]
 
@@ -70,6 +73,13 @@ class Body:
     # Hold resting contacts in place (Bullet's friction anchors): a stacked body does not
     # creep over many actions.
     friction_anchor: bool = False
+    # The centre of mass in the body's frame, and the principal moments of inertia about it
+    # along the body's axes (kg m^2). None: derived from the shapes as one solid of uniform
+    # density (``inertial``). Both engines build the body with these values (issue 39:
+    # pybullet put the centre of mass at the frame's origin, MuJoCo at the shapes' centroid,
+    # so one declaration made two different bodies).
+    center_of_mass: Vec3 | None = None
+    inertia: Vec3 | None = None
 
 
 @dataclass(frozen=True)
@@ -105,3 +115,64 @@ class SceneDescription:
             if b.name == name:
                 return b
         raise KeyError(f"scene: no body named {name!r}")
+
+
+# -- mass properties ---------------------------------------------------------------------
+@lru_cache(maxsize=64)
+def _mesh_box(path: str) -> tuple[np.ndarray, np.ndarray]:
+    """(centre, half extents) of a Wavefront file's vertices, unscaled."""
+    verts = []
+    with open(path, encoding="utf-8", errors="replace") as f:
+        for line in f:
+            if line.startswith("v "):
+                verts.append([float(x) for x in line.split()[1:4]])
+    v = np.asarray(verts, dtype=np.float64)
+    lo, hi = v.min(axis=0), v.max(axis=0)
+    return (lo + hi) / 2.0, (hi - lo) / 2.0
+
+
+def _solid(shape: Shape) -> tuple[float, np.ndarray, np.ndarray]:
+    """(volume, centre in the body frame, principal moments per unit mass about the centre)."""
+    pos = np.asarray(shape.position, dtype=np.float64)
+    if isinstance(shape, CylinderShape):
+        r, h = float(shape.radius), float(shape.height)
+        side = (3.0 * r * r + h * h) / 12.0
+        return float(np.pi * r * r * h), pos, np.array([side, side, r * r / 2.0])
+    if isinstance(shape, MeshShape):
+        # A mesh counts as its scaled bounding box: declare center_of_mass and inertia
+        # where that is too rough (a hollow or an L-shaped mesh).
+        centre, half = _mesh_box(shape.path)
+        scale = np.asarray(shape.scale, dtype=np.float64)
+        pos, half = pos + centre * scale, half * np.abs(scale)
+    else:
+        half = np.asarray(shape.half, dtype=np.float64)
+    sq = half * half
+    return float(8.0 * np.prod(half)), pos, np.array([sq[1] + sq[2], sq[0] + sq[2], sq[0] + sq[1]]) / 3.0
+
+
+def engines_derive_alike(body: Body) -> bool:
+    """Whether every engine derives the same mass properties from the body's shapes by
+    itself: one box centred on the frame, nothing declared (centre at the origin, the
+    box's own moments). Any other body is built with ``inertial(body)`` set explicitly."""
+    return (body.center_of_mass is None and body.inertia is None and len(body.shapes) == 1
+            and isinstance(body.shapes[0], BoxShape) and tuple(body.shapes[0].position) == (0.0, 0.0, 0.0))
+
+
+def inertial(body: Body) -> tuple[np.ndarray, np.ndarray]:
+    """(centre of mass in the body frame, principal moments about it in kg m^2) of a body:
+    what it declares, else its shapes as one solid of uniform density (overlaps counted
+    twice; the shapes' axes are the body's). Products of inertia are left out: a compound
+    whose principal axes are not the body's should declare ``inertia``."""
+    solids = [_solid(s) for s in body.shapes]
+    vol = np.array([v for v, _, _ in solids])
+    share = vol / vol.sum()
+    centres = np.array([c for _, c, _ in solids])
+    com = (np.asarray(body.center_of_mass, dtype=np.float64) if body.center_of_mass is not None
+           else share @ centres)
+    if body.inertia is not None:
+        return com, np.asarray(body.inertia, dtype=np.float64)
+    moments = np.zeros(3)
+    for w, (_, c, own) in zip(share, solids):
+        d = c - com
+        moments += w * (own + np.array([d[1] ** 2 + d[2] ** 2, d[0] ** 2 + d[2] ** 2, d[0] ** 2 + d[1] ** 2]))
+    return com, float(body.mass) * moments

@@ -32,7 +32,7 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
-from ..scene import Body, BoxShape, CylinderShape, Gripper, MeshShape, SceneDescription
+from ..scene import Body, BoxShape, CylinderShape, Gripper, MeshShape, SceneDescription, engines_derive_alike, inertial
 
 # The drives: force = kv ((target - q) / (CATCH_UP dt) - qdot), capped at the limit: a
 # velocity servo whose gain kv is the joint's inertia over the time step (it reaches its
@@ -137,6 +137,14 @@ def _add_body(spec: mujoco.MjSpec, b: Body) -> list[str]:
     body.name = b.name
     body.pos = list(b.position)
     body.add_freejoint()
+    if not engines_derive_alike(b):
+        # The centre of mass and inertia the description gives (declared, or its shapes as
+        # one uniform solid), not the compiler's: pybullet builds the same body.
+        com, inertia = inertial(b)
+        body.explicitinertial = True
+        body.mass = float(b.mass)
+        body.ipos = [float(x) for x in com]
+        body.inertia = [float(x) for x in inertia]
     vols = np.array([_volume(s) for s in b.shapes])
     for s, n, v in zip(b.shapes, names, vols):
         _add_geom(spec, body, s, n, float(b.mass) * float(v / vols.sum()))

@@ -11,9 +11,10 @@ from __future__ import annotations
 import re
 from dataclasses import dataclass
 
+import numpy as np
 import pybullet as pb
 
-from ..scene import Body, BoxShape, CylinderShape, Gripper, MeshShape, SceneDescription
+from ..scene import Body, BoxShape, CylinderShape, Gripper, MeshShape, SceneDescription, engines_derive_alike, inertial
 
 # The fingers' coupling (as pybullet's Panda example does): two independent position servos
 # squeezing one object drift sideways together and carry it off centre.
@@ -34,6 +35,9 @@ class SceneHandles:
     finger_inner: float          # joint position at which a finger's inner face is at y = 0
     grip_force: float
     time_step: float
+    # Per object, its centre of mass in its frame where that is not the frame's origin
+    # (None: the origin): Bullet reports and resets the centre's pose, the service the frame's.
+    object_com: tuple = ()
 
     def __getattr__(self, name: str) -> int:
         """A body by its name (``handles.table``, ``handles.container``, ``handles.rail``)."""
@@ -85,9 +89,37 @@ def build_body(client: int, body: Body) -> int:
         shape = _compound(client, body.shapes)
     extra = {"useMaximalCoordinates": True} if body.maximal_coordinates else {}
     mass = float(body.mass) if body.mass else 0
+    explicit = bool(mass) and not engines_derive_alike(body)
+    if explicit:
+        com, inertia = inertial(body)
+        if np.any(com):
+            extra["baseInertialFramePosition"] = [float(x) for x in com]
     uid = pb.createMultiBody(mass, shape, basePosition=list(body.position), **extra, physicsClientId=client)
+    if explicit:
+        derived = np.array(pb.getDynamicsInfo(uid, -1, physicsClientId=client)[2])
+        # Bullet derives a compound's inertia from its bounding box; a declared or
+        # shape-derived one replaces it (kept where they agree to rounding: same bits).
+        if not np.allclose(derived, inertia, rtol=1e-12, atol=0.0):
+            if body.maximal_coordinates:
+                # Bullet's changeDynamics turns a maximal-coordinates body's state to NaN
+                # when it sets the inertia (pybullet 3.2.x): that body is built as a
+                # multibody instead (the flag is a speed hint; the physics is the same).
+                pb.removeBody(uid, physicsClientId=client)
+                extra.pop("useMaximalCoordinates")
+                uid = pb.createMultiBody(mass, shape, basePosition=list(body.position), **extra,
+                                         physicsClientId=client)
+            pb.changeDynamics(uid, -1, localInertiaDiagonal=[float(x) for x in inertia], physicsClientId=client)
     pb.changeDynamics(uid, -1, lateralFriction=body.friction, physicsClientId=client)
     return uid
+
+
+def centre_offset(body: Body) -> np.ndarray | None:
+    """The centre of mass in the body frame where Bullet's base pose is not the frame's
+    (Bullet's base pose is the inertial frame's); None where they coincide."""
+    if not body.mass or engines_derive_alike(body):
+        return None
+    com, _ = inertial(body)
+    return com if np.any(com) else None
 
 
 def _compound(client: int, shapes) -> int:
@@ -146,4 +178,5 @@ def build_scene(client: int, desc: SceneDescription) -> SceneHandles:
     gripper, fingers, cid = build_gripper(client, desc.gripper)
     g = desc.gripper
     return SceneHandles(client, bodies, tuple(bodies[n] for n in desc.objects), gripper, fingers, cid,
-                        g.palm_offset, g.finger_half[1], g.grip_force, desc.time_step)
+                        g.palm_offset, g.finger_half[1], g.grip_force, desc.time_step,
+                        tuple(centre_offset(desc.body(n)) for n in desc.objects))

@@ -52,9 +52,26 @@ class PybulletWorld(GroundedWorld):
             if i in self._absent:
                 self._absent[i] = np.array(pose, dtype=np.float64)
                 continue
-            pb.resetBasePositionAndOrientation(body, pose[:3], pose[3:], physicsClientId=c)
+            pb.resetBasePositionAndOrientation(body, self._to_centre(i, pose[:3], pose[3:]), pose[3:],
+                                              physicsClientId=c)
             pb.resetBaseVelocity(body, [0, 0, 0], [0, 0, 0], physicsClientId=c)
         self._set_gripper(config.robot, reset=True)
+
+    def _to_centre(self, i: int, position, orientation):
+        """Object i's frame position as Bullet's base (centre of mass) position."""
+        com = self.handles.object_com[i] if self.handles.object_com else None
+        if com is None:
+            return position
+        rot = np.array(pb.getMatrixFromQuaternion(orientation)).reshape(3, 3)
+        return np.asarray(position, dtype=np.float64) + rot @ com
+
+    def _frame_pose(self, i: int, body: int) -> np.ndarray:
+        """Object i's pose (frame position, quaternion) from Bullet's base pose."""
+        pos, orn = pb.getBasePositionAndOrientation(body, physicsClientId=self.client)
+        com = self.handles.object_com[i] if self.handles.object_com else None
+        if com is not None:
+            pos = np.asarray(pos) - np.array(pb.getMatrixFromQuaternion(orn)).reshape(3, 3) @ com
+        return np.concatenate([pos, orn])
 
     def _set_gripper(self, target: np.ndarray, reset: bool = False) -> None:
         """See ``GroundedWorld._set_gripper``: a fixed constraint capped at the limit."""
@@ -102,8 +119,7 @@ class PybulletWorld(GroundedWorld):
         q = [s[0] for s in pb.getJointStates(h.gripper, list(h.fingers), physicsClientId=c)]
         opening = 2.0 * (np.mean(q) - h.finger_inner)
         robot = np.array([pos[0], pos[1], pos[2] - h.palm_offset, yaw_of(np.array(orn)), opening])
-        objects = np.array([self._absent[i] if i in self._absent else
-                            np.concatenate(pb.getBasePositionAndOrientation(b, physicsClientId=c))
+        objects = np.array([self._absent[i] if i in self._absent else self._frame_pose(i, b)
                             for i, b in enumerate(h.objects)])
         return Configuration(robot, objects)
 
@@ -144,7 +160,7 @@ class PybulletWorld(GroundedWorld):
             return None
         kept = [int(i) for i in np.flatnonzero(keep)]
         for i in np.flatnonzero(~keep):
-            self._absent[int(i)] = np.concatenate(pb.getBasePositionAndOrientation(h.objects[i], physicsClientId=c))
+            self._absent[int(i)] = self._frame_pose(int(i), h.objects[i])
             pb.removeBody(h.objects[i], physicsClientId=c)
         bodies = [h.objects[i] for i in kept]
         start = np.array([pb.getBasePositionAndOrientation(b, physicsClientId=c)[0] for b in bodies]).reshape(-1, 3)

@@ -236,3 +236,65 @@ def test_mujoco_stepping_in_blocks_is_the_one_step_loop_bit_for_bit(name, option
         assert a.state == b.state and a.steps == b.steps
         assert np.array_equal(a.configuration.to_array(), b.configuration.to_array())
         assert np.array_equal(a.measurements, b.measurements, equal_nan=True)
+
+
+# -- the centre of mass, one declaration in both engines (issue 39) -----------------------
+from sim_workers.container import ContainerDomain  # noqa: E402
+from sim_workers.scene import Body, BoxShape, inertial  # noqa: E402
+
+
+def test_a_compound_s_mass_properties_are_its_uniform_solid_s():
+    """Two boxes side by side are the one box they make: its centre and its moments."""
+    halves = Body("pair", (BoxShape((0.05, 0.1, 0.02), (-0.05, 0.0, 0.1)), BoxShape((0.05, 0.1, 0.02), (0.05, 0.0, 0.1))),
+                  2.0, (0, 0, 0), 0.5)
+    com, moments = inertial(halves)
+    one = Body("one", (BoxShape((0.1, 0.1, 0.02)),), 2.0, (0, 0, 0), 0.5)
+    assert np.allclose(com, (0.0, 0.0, 0.1)) and np.allclose(moments, inertial(one)[1], rtol=1e-12)
+    declared = replace(halves, center_of_mass=(0.01, 0.0, 0.0), inertia=(1.0, 2.0, 3.0))
+    assert np.allclose(inertial(declared)[0], (0.01, 0, 0)) and np.allclose(inertial(declared)[1], (1, 2, 3))
+
+
+class _UniformTray(ContainerDomain):
+    """The container with its tray's mass properties left to its walls (a uniform solid:
+    the centre 15 mm above the frame's origin)."""
+
+    def scene_description(self, props):
+        desc = super().scene_description(props)
+        bodies = tuple(replace(b, center_of_mass=None, inertia=None) if b.name == "container" else b
+                       for b in desc.bodies)
+        return replace(desc, bodies=bodies)
+
+
+def test_both_engines_build_the_declared_centre_of_mass():
+    """The same declaration is the same body in both engines: pybullet put the centre at
+    the frame's origin and MuJoCo at the walls' centroid. And the pybullet world reports
+    and places the body's frame, not Bullet's centre-of-mass pose."""
+    import pybullet as pb
+
+    domain = _UniformTray()
+    props = domain.properties(domain.true_properties())
+    desc = domain.scene_description(props)
+    tray = desc.body("container")
+    com, moments = inertial(tray)
+    assert 0.010 < com[2] < 0.020 and np.allclose(com[:2], 0.0)
+    m = build_model(desc).model
+    bid = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, "container")
+    assert np.allclose(m.body_ipos[bid], com, atol=1e-12) and np.allclose(m.body_inertia[bid], moments, rtol=1e-9)
+    with GroundedWorld(domain) as world:
+        config = domain.initial_configuration(props)
+        placed = world.reset(config, props)
+        uid = world.handles.bodies["container"]
+        info = pb.getDynamicsInfo(uid, -1, physicsClientId=world.client)
+        assert np.allclose(info[2], moments, rtol=1e-9)
+        # (a maximal-coordinates body's reported inertial frame is not filled in: Bullet's
+        # base pose, which is the centre's, says where the centre is)
+        base = pb.getBasePositionAndOrientation(uid, physicsClientId=world.client)[0]
+        assert np.allclose(np.subtract(base, placed.objects[0][:3]), com, atol=1e-9)
+        assert np.allclose(world.observe().objects[0], placed.objects[0], atol=1e-12)   # the frame, both ways
+        out = act(world, domain, placed, props, "pickup(r,b1,init)")
+        assert abs(out.configuration.objects[0][2] - placed.objects[0][2]) < 1e-4       # the tray stays put
+    # The built-in tray declares its own (the figures' tray): both engines build that one.
+    builtin = ContainerDomain().scene_description(props).body("container")
+    assert builtin.center_of_mass == (0.0, 0.0, 0.0)
+    m = build_model(ContainerDomain().scene_description(props)).model
+    assert np.allclose(m.body_ipos[bid], 0.0) and np.allclose(m.body_inertia[bid], builtin.inertia, rtol=1e-9)
