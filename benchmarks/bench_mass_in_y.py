@@ -25,7 +25,7 @@ import time
 import numpy as np
 
 from sim_workers.domains import load
-from sim_workers.grounded_world import GroundedWorld
+from sim_workers.engines import make_world
 from sim_workers.shard import Shard
 from sim_workers.stack_and_push.probes import tower_configuration
 
@@ -41,7 +41,7 @@ def cases(options: dict, seed: int) -> dict:
     truth = {"block_sizes": sizes, "density": TRUE[1]}
     rng = np.random.default_rng(seed)
     out = {}
-    with GroundedWorld(d) as w:
+    with make_world(d) as w:
         for kind, load_k, action in (("pickup", 0, "pickup(r,b3,init)"), ("stack", 2, "stack(r,b3,tower)"),
                                      ("push", 4, "push(r,tower,start,goal)")):
             config = w.reset(tower_configuration(d, sizes, load_k, rng), truth)

@@ -40,7 +40,7 @@ def domain_cases(name: str) -> dict:
     """Per action kind: (start, action, trajectory, transit end) of its first occurrence in
     the domain's optimistic plan, run once in a true world (any registered domain)."""
     from coordinator.domains import load as load_domain
-    from sim_workers.grounded_world import GroundedWorld
+    from sim_workers.engines import make_world
 
     d = load_domain(name)
     phys, task, n = d.physics, d.task, d.n_blocks
@@ -48,7 +48,7 @@ def domain_cases(name: str) -> dict:
     config = phys.initial_configuration(truth)
     plan = task.plan(task.initial_state(n), task.optimistic_transition(n))
     cases = {}
-    with GroundedWorld(phys) as world:
+    with make_world(phys) as world:
         config = world.reset(config, truth)
         for action in plan.actions:
             key = phys.action_pose(truth, config, action)

@@ -59,7 +59,7 @@ import pybullet as pb  # noqa: E402
 
 from sim_workers.domains import load  # noqa: E402
 from sim_workers.configuration import Configuration  # noqa: E402
-from sim_workers.grounded_world import GroundedWorld  # noqa: E402
+from sim_workers.engines import make_world  # noqa: E402
 from sim_workers.container.probes import loaded_configuration  # noqa: E402
 from sim_workers.shard import Shard, remote_shard  # noqa: E402
 
@@ -101,7 +101,7 @@ def make_cases(domain, seed: int) -> dict:
     case("pickup", domain.initial_configuration(truth), "pickup(r,b3,init)")
     # Stack onto a pile (tower) of two: the start is a real grasp of b3 (observed after a pickup).
     two = loaded(2)
-    with GroundedWorld(domain) as world:
+    with make_world(domain) as world:
         world.reset(two, truth)
         action = "pickup(r,b3,init)"
         key = domain.action_pose(truth, two, action)
@@ -135,7 +135,7 @@ def _replay(job) -> float:
 
     domain_name, start, sizes, traj, t0, counts, action = job
     domain = load(domain_name)
-    world = GroundedWorld(domain, leave_out=True)
+    world = make_world(domain, leave_out=True)
     config = Configuration.from_array(start)
     dt = domain.spec.time_step
     tic = time.perf_counter()
@@ -191,7 +191,7 @@ def _raw_worker(conn, domain_name: str, n_blocks: int) -> None:
             start, action, traj, t0 = case
             if action not in placed:
                 from sim_workers.configuration import Configuration
-                world = GroundedWorld(domain)
+                world = make_world(domain)
                 world.reset(Configuration.from_array(start), truth)
                 world.skip_to(traj, t0)
                 placed[action] = world
@@ -300,7 +300,7 @@ def reset_ms(domain, cases, n: int, seed: int) -> float:
     from sim_workers.configuration import Configuration
     config = Configuration.from_array(start)
     sizes = particle_sizes(domain, n, seed)
-    with GroundedWorld(domain) as w:
+    with make_world(domain) as w:
         w.reset(config, {"block_sizes": sizes[0]})
         t0 = time.perf_counter()
         for row in sizes:

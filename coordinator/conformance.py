@@ -17,6 +17,7 @@ import numpy as np
 from planner.domain import TaskDomain
 from sim_workers.base import PhysicsDomain, missing_members
 from sim_workers.domains import import_string
+from sim_workers.engines import make_world
 from sim_workers.grounded_world import GroundedWorld
 from sim_workers.properties import PropertyError
 
@@ -164,7 +165,7 @@ def check_outcomes_depend_on_L(d: Domain) -> str:
     truth = _truth(d)
     steps, config = [], d.physics.initial_configuration(truth)
     seen: dict[str, str] = {}
-    with GroundedWorld(d.physics) as world:
+    with make_world(d.physics) as world:
         for _, action in _first_actions(d):
             steps.append((config, action))
             config = _outcome(world, d, config, truth, action).configuration
@@ -217,7 +218,7 @@ def check_determinism(d: Domain, ray_actors: bool = True) -> str:
     (_, action), *rest = _first_actions(d)
     # Particle worlds, as shards build them (leaving out what an action cannot reach, for
     # the action kinds the domain names): a Ray actor must match them bit for bit.
-    with GroundedWorld(d.physics, leave_out=True) as a, GroundedWorld(d.physics, leave_out=True) as b:
+    with make_world(d.physics, leave_out=True) as a, make_world(d.physics, leave_out=True) as b:
         first = _outcome_bits(a, d, config, props, action)
         assert _outcome_bits(b, d, config, props, action) == first, "two fresh worlds differ"
         if rest:

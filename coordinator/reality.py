@@ -13,6 +13,7 @@ from typing import Callable, Protocol
 import numpy as np
 
 from sim_workers.configuration import Configuration
+from sim_workers.engines import make_world
 from sim_workers.grounded_world import GroundedWorld
 from sim_workers.reality_gap import (RealityGap, SensorNoise, action_jitter, executed, jitter_planar,
                                      jittered_domain, noisy_readings, perceived_planar)
@@ -99,7 +100,7 @@ class SimulatedReality:
         domain = jittered_domain(rng, self.gap.friction, domain=self.domain_name, **self.options)
         if self.world is not None:
             self.world.close()
-        self.world = GroundedWorld(domain)
+        self.world = make_world(domain)
         config = domain.initial_configuration(self.truth)
         # The domain's movable objects are placed with jitter (a fixture it names stays put).
         objects = jitter_planar(rng, config.objects, domain.jittered_objects,

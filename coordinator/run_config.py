@@ -8,12 +8,15 @@ from pydantic import AfterValidator, AliasChoices, BaseModel, ConfigDict, Field,
 
 from planner.blocks.model import DEFAULT_COSTS
 from sim_workers.domains import DEFAULT_DOMAIN, Scene
+from sim_workers.engines.registry import ENGINES
 
 from .agents import AGENTS
 
 # One place for each fact: the agent names are the registry's (coordinator.agents), the
 # default utility terms the task model's (planner.blocks.model.DEFAULT_COSTS).
 AgentName = Literal[tuple(AGENTS)]  # type: ignore[valid-type]
+# The engines are the registry's (sim_workers.engines.registry.ENGINES: the one list).
+EngineName = Literal[ENGINES]  # type: ignore[valid-type]
 
 
 def _registered_domain(name: str) -> str:
@@ -168,8 +171,8 @@ class RunConfig(BaseModel):
     # The physics engines (issue 27; sim_workers/engines): the particle worlds' and the
     # simulated reality's. None is the default engine (pybullet where it is installed, else
     # MuJoCo); the two differ for a run whose simulator is not its reality.
-    engine: Literal["pybullet", "mujoco"] | None = None
-    reality_engine: Literal["pybullet", "mujoco"] | None = None
+    engine: EngineName | None = None
+    reality_engine: EngineName | None = None
     # The simulated reality's sensors (issue 37; sim_workers.reality_gap.SensorNoise): what
     # it reports is noisy, the world goes on from the truth. Simulated realities only (a
     # robot session has no such fields). Stored settings from before them keep the exact

@@ -182,8 +182,13 @@ def result_record(config: RunConfig, session: Session, nodes: list[dict], wall_s
     utilities = [e["utility"] for e in episodes]
     post = session.posterior()
     T = session.transition
+    # The hidden truth in full, by L's names (defaults included): `truth: {}` said nothing
+    # of what the run's reality held when it was the default (issue 39).
+    truth = {str(n): float(v) for n, v in zip(session.L.names, session.L.truth_row(config.truth_values(), 1, False))}
+    dumped = config.model_dump()
+    dumped["truth"] = {**truth, **dumped["truth"]}
     return {
-        "config": config.model_dump(),
+        "config": dumped,
         "episodes": episodes,
         "summary": {
             "mean_utility": float(np.mean(utilities)) if utilities else None,
@@ -191,7 +196,7 @@ def result_record(config: RunConfig, session: Session, nodes: list[dict], wall_s
             "final_size_mean": post.get("size_mean"),
             "final_size_std": post.get("size_std"),
             "true_size": config.true_size if "size_mean" in post else None,
-            "truth": config.truth_values(),
+            "truth": {**truth, **config.truth_values()},
             "posterior": post["properties"],
             "transition": T.to_planner(),
             # actions that moved without a checked transit (episode records say why)

@@ -4,7 +4,8 @@
 an observed configuration under some properties, follow a trajectory, observe. What that
 costs in an engine lives in its subclass (``sim_workers.engines``): ``PybulletWorld`` (the
 default) owns one pybullet DIRECT client, ``MujocoWorld`` one MuJoCo model and data.
-``GroundedWorld(domain, engine="mujoco")`` builds the engine's world.
+``sim_workers.engines.make_world(domain, engine="mujoco")`` builds the engine's world (the
+engine hooks are abstract; ``GroundedWorld(domain, ...)`` is kept as the same factory).
 
 Every engine keeps one guarantee: ``reset`` makes a result depend on nothing but
 (configuration, properties, trajectory). pybullet's ``restoreState`` and pose resets
@@ -16,6 +17,7 @@ process).
 """
 from __future__ import annotations
 
+import abc
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -57,7 +59,7 @@ class Outcome:
     steps: int
 
 
-class GroundedWorld:
+class GroundedWorld(abc.ABC):
     """One physics simulation of `domain`'s scene in one engine (``engine``: pybullet or
     mujoco; None: the domain's ``engine``, else the default).
 
@@ -73,6 +75,9 @@ class GroundedWorld:
     engine = ""
 
     def __new__(cls, domain: Domain, *, leave_out: bool = False, engine: str | None = None):
+        # ``GroundedWorld(domain)`` is the spelling plugins and scripts were written with; it
+        # resolves the engine's subclass as ``sim_workers.engines.make_world`` (the factory
+        # the service calls) does. An engine's subclass is built directly.
         if cls is GroundedWorld:
             from .engines.registry import world_class
             cls = world_class(engine or domain.engine)
@@ -90,21 +95,26 @@ class GroundedWorld:
         self._connect()
 
     # -- what an engine provides ---------------------------------------------------------
+    @abc.abstractmethod
     def _connect(self) -> None:
         """Open the engine (called once, by the constructor)."""
-        raise NotImplementedError
+        ...
 
+    @abc.abstractmethod
     def close(self) -> None:
-        raise NotImplementedError
+        ...
 
+    @abc.abstractmethod
     def _rebuild(self, props: dict) -> None:
         """The scene under `props`, as if built in a fresh process."""
-        raise NotImplementedError
+        ...
 
+    @abc.abstractmethod
     def _apply(self, config: Configuration) -> None:
         """Put the objects and the gripper at `config`, at rest."""
-        raise NotImplementedError
+        ...
 
+    @abc.abstractmethod
     def _set_gripper(self, target: np.ndarray, reset: bool = False) -> None:
         """Command the gripper to `target` (x, y, z, yaw, opening[, grip_force, force_limit]).
 
@@ -112,32 +122,39 @@ class GroundedWorld:
         force limit below the scene's is a force-limited motion (a push): the arm then
         carries the gripper's own weight by gravity compensation, as an arm controller
         does, so that the limit caps what the wrist exerts on the world."""
-        raise NotImplementedError
+        ...
 
+    @abc.abstractmethod
     def observe(self) -> Configuration:
         """The current configuration (gripper tool point, opening, object poses)."""
-        raise NotImplementedError
+        ...
 
+    @abc.abstractmethod
     def at_rest(self) -> bool:
-        raise NotImplementedError
+        ...
 
+    @abc.abstractmethod
     def _step(self) -> None:
-        raise NotImplementedError
+        ...
 
+    @abc.abstractmethod
     def _wrist_force(self) -> tuple[float, float, float]:
         """What carries the gripper exerts on it (N, world frame): gripper plus load."""
-        raise NotImplementedError
+        ...
 
+    @abc.abstractmethod
     def _opening(self) -> float:
-        raise NotImplementedError
+        ...
 
+    @abc.abstractmethod
     def _tool_position(self) -> np.ndarray:
         """Where the tool point is (x, y, z)."""
-        raise NotImplementedError
+        ...
 
+    @abc.abstractmethod
     def _commanded_tool(self) -> np.ndarray:
         """Where the tool point was last commanded to (x, y, z)."""
-        raise NotImplementedError
+        ...
 
     def _leave_out(self, targets: np.ndarray):
         """Remove the objects the action cannot reach; a guard, or None (nothing left out)."""

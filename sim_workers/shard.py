@@ -15,7 +15,7 @@ import numpy as np
 
 from .configuration import Configuration
 from .domains import load
-from .grounded_world import GroundedWorld
+from .engines.registry import make_world
 
 
 def encode_state(state: frozenset[str]) -> str:
@@ -42,7 +42,7 @@ class Shard:
         # does not survive pickling. Particle worlds leave out the bodies an action cannot
         # reach (sim_workers/reach.py; guarded, so outcomes do not depend on it).
         self.domain = load(domain, **(options or {}))
-        self.worlds = [GroundedWorld(self.domain, leave_out=leave_out) for _ in range(n_worlds)]
+        self.worlds = [make_world(self.domain, leave_out=leave_out) for _ in range(n_worlds)]
 
     def simulate(self, start: np.ndarray, sizes: np.ndarray, action: str, trajectory: np.ndarray,
                  start_time=0.0) -> dict:

@@ -5,7 +5,8 @@ from __future__ import annotations
 import numpy as np
 
 from ..configuration import Configuration, quat_from_yaw
-from ..grounded_world import GroundedWorld, act
+from ..engines.registry import make_world
+from ..grounded_world import act
 from ..reality_gap import PLACEMENT_JITTER_M, YAW_JITTER_RAD, jitter_planar
 from .columns import column_x, two_columns
 
@@ -40,7 +41,7 @@ def probe_trial(domain, action: str, true_size: float, believed_size: float, loa
     sizes = np.full(n_blocks, true_size)
     truth = {"block_sizes": sizes}
     believed = {"block_sizes": np.full(n_blocks, believed_size)}
-    with GroundedWorld(domain) as world:
+    with make_world(domain) as world:
         if action == "push":
             config = world.reset(loaded_configuration(domain, sizes, load_k, rng), truth)
             out = act(world, domain, config, believed, "push(r,c,init,goal)")

@@ -9,4 +9,4 @@ no domain keeps a hand-written copy of its scene per engine. Where pybullet has 
 from __future__ import annotations
 
 from .registry import (ENGINES, PACKAGES, WORLDS, EngineError, check_engine, default_engine,  # noqa: F401
-                       installed, world_class)
+                       installed, make_world, world_class)

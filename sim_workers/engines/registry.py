@@ -47,3 +47,9 @@ def world_class(engine: str | None):
     """The ``GroundedWorld`` subclass of `engine` (None: the default)."""
     module, name = WORLDS[check_engine(engine)].split(":")
     return getattr(importlib.import_module(module), name)
+
+
+def make_world(domain, *, leave_out: bool = False, engine: str | None = None):
+    """A grounded world of `domain` in `engine` (None: the domain's ``engine``, else the
+    default): the factory of every engine's ``GroundedWorld`` subclass."""
+    return world_class(engine or getattr(domain, "engine", None))(domain, leave_out=leave_out)

@@ -12,6 +12,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..configuration import Configuration, quat_from_yaw
+from ..engines.registry import make_world
 from ..grounded_world import GroundedWorld, act
 from ..reality_gap import PLACEMENT_JITTER_M, YAW_JITTER_RAD, action_jitter, executed, jitter_planar
 
@@ -76,7 +77,7 @@ def probe_trial(domain, action: str, true_size: float, believed_size: float, loa
     truth = {"block_sizes": sizes}
     believed = {"block_sizes": np.full(n, believed_size),
                 "density": domain.spec.density if believed_density is None else float(believed_density)}
-    with GroundedWorld(domain) as world:
+    with make_world(domain) as world:
         if action == "pickup":
             config = domain.initial_configuration(truth)
             config = world.reset(Configuration(config.robot, jitter_planar(rng, config.objects, range(n))), truth)
@@ -137,7 +138,7 @@ def built_probe_trial(domain, action: str, true_size: float, believed_size: floa
     truth = {"block_sizes": np.full(n, true_size)}
     believed = {"block_sizes": np.full(n, believed_size),
                 "density": domain.spec.density if believed_density is None else float(believed_density)}
-    with GroundedWorld(domain) as world:
+    with make_world(domain) as world:
         config = built_tower(world, domain, truth, believed, load_k, rng)
         if config is None:
             return False

@@ -76,6 +76,8 @@ def test_every_agent_runs_an_episode_with_the_record_and_properties_it_documents
     spec = agent(name)
     result, sims = episodes[name]
     assert result["config"]["agent"] == name
+    # the hidden truth in full, the default included (issue 39: `truth: {}`)
+    assert result["config"]["truth"] == {"size": result["config"]["true_size"]} == result["summary"]["truth"]
     (record,) = result["episodes"]
     assert set(record) == RECORD_KEYS, set(record) ^ RECORD_KEYS
     assert 1 <= record["actions"] <= 3 and record["plans"]

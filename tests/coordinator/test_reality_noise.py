@@ -9,6 +9,8 @@ import json
 
 import numpy as np
 import pytest
+
+from sim_workers.engines import ENGINES
 from pydantic import ValidationError
 
 from coordinator.reality import SimulatedReality
@@ -320,7 +322,7 @@ def test_mujoco_s_reality_has_the_same_channels_and_the_same_noise():
     """The container's reality in MuJoCo (`--reality-engine mujoco`: ``engine`` in the domain
     options): the same channel layout, noisy readings, and the same draws as pybullet's."""
     runs = {}
-    for engine in ("pybullet", "mujoco"):
+    for engine in ENGINES:
         runs[engine] = [episode(n, seed=5, engine=engine) for n in (SensorNoise(), SensorNoise.NONE)]
     channels = {e: load("container", n_blocks=3, engine=e).measurement_channels() for e in runs}
     assert channels["mujoco"] == channels["pybullet"]

@@ -24,7 +24,7 @@ from sim_workers.container.probes import loaded_configuration
 from sim_workers.shard import Shard, decode_state, remote_shard
 
 N = 8
-ENGINES = ["pybullet", "mujoco"]
+from sim_workers.engines import ENGINES  # noqa: E402  (the registry's one list)
 
 
 def _case(action: str):

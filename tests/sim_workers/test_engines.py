@@ -19,7 +19,7 @@ from sim_workers.engines.mujoco_engine import build_model
 from sim_workers.grounded_world import GroundedWorld, act
 from sim_workers.probe import probe
 
-ENGINES = ["pybullet", "mujoco"]
+ENGINES = list(engines.ENGINES)      # the registry's one list
 
 
 def test_unknown_engine_is_named_with_the_known_ones():
@@ -298,3 +298,28 @@ def test_both_engines_build_the_declared_centre_of_mass():
     assert builtin.center_of_mass == (0.0, 0.0, 0.0)
     m = build_model(ContainerDomain().scene_description(props)).model
     assert np.allclose(m.body_ipos[bid], 0.0) and np.allclose(m.body_inertia[bid], builtin.inertia, rtol=1e-9)
+
+
+def test_an_engine_is_made_by_the_factory_and_must_define_every_hook():
+    """Issue 39: the engine hooks were `NotImplementedError` (an engine missing one failed
+    mid-action); they are abstract, and `make_world` is the factory (the base's
+    `GroundedWorld(domain)` is kept as the same factory for existing callers)."""
+    from sim_workers.engines import make_world
+    from sim_workers.engines.pybullet_world import PybulletWorld
+    from sim_workers.grounded_world import GroundedWorld
+
+    domain = load("container")
+    for engine in ENGINES:
+        with make_world(domain, engine=engine) as world, GroundedWorld(domain, engine=engine) as old:
+            assert type(world) is type(old) and world.engine == engine
+    hooks = GroundedWorld.__abstractmethods__
+    assert {"_connect", "_rebuild", "_apply", "observe", "_step", "_wrist_force", "close"} <= hooks
+
+    class HalfAnEngine(PybulletWorld):
+        pass
+
+    del_hook = type("NoObserve", (GroundedWorld,), {k: getattr(PybulletWorld, k) for k in hooks - {"observe"}})
+    with pytest.raises(TypeError, match="observe"):
+        del_hook(domain)
+    with HalfAnEngine(domain) as w:                      # a subclass of a whole engine is whole
+        assert w.engine == "pybullet"

@@ -9,6 +9,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from sim_workers.engines import ENGINES
+
 from sim_workers.container.scene import GRIPPER_MASS
 from sim_workers.grounded_world import GroundedWorld
 from sim_workers.properties import PropertyError
@@ -29,7 +31,7 @@ def _pickup(domain, size: float, density: float, engine: str | None = None):
         return out, config
 
 
-@pytest.mark.parametrize("engine", ["pybullet", "mujoco"])
+@pytest.mark.parametrize("engine", ENGINES)
 @pytest.mark.parametrize("size,density", [(0.040, 300.0), (0.040, 2400.0), (0.055, 3000.0)])
 def test_held_weight_reads_the_blocks_weight_within_20_mN(size, density, engine):
     """In both engines (pybullet reads ~10 mN high, MuJoCo's drives read it exactly)."""

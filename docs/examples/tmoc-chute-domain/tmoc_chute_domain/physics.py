@@ -33,7 +33,8 @@ import numpy as np
 from sim_workers import trajectory as tr
 from sim_workers.base import PhysicsDomain
 from sim_workers.configuration import Configuration, Workspace, quat_from_yaw
-from sim_workers.grounded_world import GroundedWorld, act
+from sim_workers.engines import make_world
+from sim_workers.grounded_world import act
 from sim_workers.obstacles import Box, body_box, hand_boxes
 from sim_workers.properties import PropertyError, PropertySpace
 from sim_workers.reality_gap import action_jitter, executed, jitter_planar
@@ -374,7 +375,7 @@ class ChutePhysics(PhysicsDomain):
         config = self.initial_configuration(truth)
         config = Configuration(config.robot, jitter_planar(rng, config.objects, range(self.n_blocks)))
         run_as = (lambda traj, a: executed(traj, a, rng, action_jitter(self, a)))
-        with GroundedWorld(self) as world:
+        with make_world(self) as world:
             config = world.reset(config, truth)
             out = act(world, self, config, truth, f"sweep(p{load_k})", run_as=run_as)
         return all(f"delivered(p{i + 1})" in out.state for i in range(load_k))
