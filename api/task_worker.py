@@ -134,7 +134,7 @@ class TaskWorker:
 
     def _frames_sink(self, task_id: str, spec: dict):
         """Where the task's scene pictures go (None: the task or the server has them off)."""
-        from sim_workers.engines import installed
+        from coordinator.engines import installed
 
         # (pictures are pybullet's: a server without it renders none, whatever the spec says)
         if not spec.get("frames", True) or self.max_frames <= 0 or not installed("pybullet"):

@@ -34,6 +34,7 @@ DomainSpec = physics_registry.DomainSpec
 BUILTIN = physics_registry.BUILTIN
 specs = physics_registry.specs
 spec = physics_registry.spec
+canonical_name = physics_registry.canonical_name
 DEFAULT_DOMAIN = physics_registry.DEFAULT_DOMAIN
 _log = logging.getLogger("tmoc.domains")
 

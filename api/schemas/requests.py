@@ -73,7 +73,7 @@ def _spec_fields(exclude: set[str], max_particles: int, max_episodes: int, max_s
         fields[name] = (info.annotation, info)
     fields["costs"] = (StrictCosts, Field(default_factory=StrictCosts))
     # The engines this server has installed (a schema-valid request is never refused for one).
-    from sim_workers.engines import ENGINES, default_engine, installed
+    from coordinator.engines import ENGINES, default_engine, installed
     have = tuple(e for e in ENGINES if installed(e))
     for name, whose in (("engine", "the particle worlds'"), ("reality_engine", "the simulated reality's")):
         if name not in exclude:
@@ -147,7 +147,7 @@ def _per_domain(name: str, doc: str, fields: dict, with_truth: bool) -> Any:
     from pydantic import Discriminator, Tag
 
     from coordinator.domains import load, names, spec, task_half
-    from sim_workers.domains import canonical_name
+    from coordinator.domains import canonical_name
 
     domain_info = fields["domain"][1]
     branches = []

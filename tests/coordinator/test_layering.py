@@ -59,6 +59,7 @@ def test_the_packages_the_suite_imports_keep_the_layering(tmp_path):
     code, out, origins = _lint(tmp_path, os.environ.get("PYTHONPATH"))
     assert origins == {p: _origin(p) for p in PACKAGES}, out
     assert code == 0 and f"{CONTRACT} KEPT" in out, out
+    assert "api imports neither sim_workers nor planner KEPT" in out, out
 
 
 @pytest.fixture(scope="module")
@@ -97,6 +98,7 @@ def test_an_arrow_the_wrong_way_breaks_the_contract(tree_copy, tmp_path, module,
      "a domain imports no other domain"),
     ("coordinator/session.py", "from planner.container import TASK", "the service imports no domain"),
     ("sim_workers/probe.py", "from sim_workers.container import probes", "the service imports no domain"),
+    ("api/task_worker.py", "from sim_workers.engines import installed", "api imports neither sim_workers nor planner"),
 ])
 def test_a_domain_import_across_the_kit_breaks_its_contract(tree_copy, tmp_path, module, added, contract):
     """The built-in domains are siblings over the shared kits, and the loop, the API and the
