@@ -43,17 +43,32 @@ def probe_actions(domain_name: str) -> tuple[str, ...]:
     return tuple(domain.probe_actions)
 
 
+def probe_keywords(domain_obj) -> set[str]:
+    """The keyword arguments a domain's ``probe_trial`` takes beyond the protocol's five
+    ("*" when it takes any): which beliefs and truths its probe can read."""
+    import inspect
+
+    params = inspect.signature(domain_obj.probe_trial).parameters.values()
+    if any(p.kind is p.VAR_KEYWORD for p in params):
+        return {"*"}
+    return {p.name for p in params} - {"action", "true_size", "believed_size", "load_k", "rng"}
+
+
 def run_trial(action: str, true_size: float, believed_size: float, load_k: int,
               rng: np.random.Generator, n_blocks: int = 8, options: dict | None = None, *,
-              domain: str, believed_density: float | None = None) -> bool:
+              domain: str, believed_density: float | None = None, truth: dict | None = None,
+              belief: dict | None = None, believed_kw: dict | None = None) -> bool:
     """One seeded trial; True when the action had its intended symbolic effect. The world
     is the domain with jittered friction; what the trial does is the domain's
-    ``probe_trial`` (each domain knows how to set up its own actions)."""
+    ``probe_trial`` (each domain knows how to set up its own actions). `truth` and
+    `belief` (every property of L by name) reach a probe that takes them."""
     world_domain = jittered_domain(rng, domain=domain, n_blocks=n_blocks, **(options or {}))
-    if believed_density is None:
-        return bool(world_domain.probe_trial(action, true_size, believed_size, load_k, rng))
-    return bool(world_domain.probe_trial(action, true_size, believed_size, load_k, rng,
-                                         believed_density=believed_density))
+    extra = {**(believed_kw or {}), **({} if believed_density is None else {"believed_density": believed_density})}
+    takes = probe_keywords(world_domain)
+    for name, value in (("truth", truth), ("belief", belief)):
+        if value is not None and ({"*", name} & takes):
+            extra[name] = dict(value)
+    return bool(world_domain.probe_trial(action, true_size, believed_size, load_k, rng, **extra))
 
 
 def probe_loads(domain_obj, action: str) -> range:
@@ -64,7 +79,8 @@ def probe_loads(domain_obj, action: str) -> range:
 
 def probe(action: str, true_size: float, believed_size: float | None = None, load_k: int = 4,
           trials: int = 20, seed: int = 0, n_blocks: int = 8, options: dict | None = None, *,
-          domain: str, believed_density: float | None = None) -> ProbeResult:
+          domain: str, believed_density: float | None = None, truth: dict | None = None,
+          belief: dict | None = None, believed_kw: dict | None = None) -> ProbeResult:
     """Run `trials` seeded trials of `action` (one of the domain's ``probe_actions``).
 
     `believed_density` (kg/m^3) is what Y believes; it needs a domain whose Y uses mass
@@ -85,7 +101,7 @@ def probe(action: str, true_size: float, believed_size: float | None = None, loa
     # One child generator per trial: trial t's outcome does not depend on the trial count.
     children = np.random.default_rng(seed).spawn(trials)
     wins = sum(run_trial(action, true_size, believed, load_k, rng, n_blocks, options, domain=domain,
-                         believed_density=believed_density)
+                         believed_density=believed_density, truth=truth, belief=belief, believed_kw=believed_kw)
                for rng in children)
     fields = {f.name: getattr(world.spec, f.name) for f in dataclasses.fields(world.spec)}
     true_density = fields.get("density") if believed_density is not None or "density" in options else None

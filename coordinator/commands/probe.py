@@ -19,7 +19,6 @@ throws the tower), e.g.
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import json
 import math
 
@@ -44,10 +43,16 @@ def register(subparsers) -> None:
                    help="the domain's probe actions (container: pickup, stack, push; "
                         "stack_and_push: pickup, stack, push, stand, and built_stack, built_push: "
                         "onto / of a tower the agent's own actions built, as T* probes it)")
-    p.add_argument("--true-size", required=True, type=float, metavar="S",
-                   help="true block side length in the world (m)")
+    p.add_argument("--truth", action="append", default=None, metavar="NAME=VALUE[,NAME=VALUE]",
+                   help="the probed world's hidden truth by the names of L (`tmoc domains`), e.g. "
+                        "size=0.045 or friction=0.6 (default: the domain's default truth)")
+    p.add_argument("--belief", action="append", default=None, metavar="NAME=VALUE[,NAME=VALUE]",
+                   help="what Y believes, by the names of L (default: the truth); a belief the "
+                        "domain's probe does not read is refused")
+    p.add_argument("--true-size", type=float, default=None, metavar="S",
+                   help="--truth size=S: the true block side length in the world (m)")
     p.add_argument("--believed-size", type=float, default=None, metavar="B",
-                   help="block size Y computes the poses from (m; default: the true size)")
+                   help="--belief size=B: the block size Y computes the poses from (m)")
     p.add_argument("--load", type=int, default=DEFAULT_LOAD, metavar="K",
                    help="container: blocks loaded (push) or stacked (stack); stack_and_push: the "
                         "tower height before a stack (0..N-1), pushed or left alone (1..N); "
@@ -91,9 +96,43 @@ def _check_density(flag: str, value: float) -> float:
     return value
 
 
+def _pairs(flag: str, items: list[str] | None) -> dict[str, float]:
+    """``["size=0.04,density=2400"]`` -> {"size": 0.04, "density": 2400.0}; UsageError naming `flag`."""
+    out: dict[str, float] = {}
+    for item in items or []:
+        for pair in filter(None, item.split(",")):
+            name, sep, value = pair.partition("=")
+            try:
+                number = float(value)
+            except ValueError:
+                number = math.nan
+            if not sep or not name.strip() or not math.isfinite(number):
+                raise UsageError(f"{flag} {pair}: expected NAME=NUMBER")
+            out[name.strip()] = number
+    return out
+
+
+_SPELLED: dict[tuple[str, str], str] = {}     # (--truth|--belief, name) -> the flag the user typed
+
+
+def _with_alias(flag: str, values: dict, name: str, alias: str, value: float | None) -> None:
+    if value is None:
+        return
+    if name in values and values[name] != value:
+        raise UsageError(f"{alias}: {value:g} disagrees with {flag} {name}={values[name]:g}")
+    values[name] = value
+    _SPELLED[(flag, name)] = alias
+
+
+def _flag(flag: str, name: str) -> str:
+    """How the user wrote a truth or belief: its alias flag (``--believed-density``) or
+    ``--belief NAME``."""
+    return _SPELLED.get((flag, name), f"{flag} {name}")
+
+
 def run(args: argparse.Namespace) -> int:
     from sim_workers import domains
-    from sim_workers.probe import probe, probe_actions, probe_loads
+    from sim_workers.probe import probe, probe_actions, probe_keywords, probe_loads
 
     known = domains.names()
     if args.domain not in known:
@@ -105,34 +144,81 @@ def run(args: argparse.Namespace) -> int:
                          f"(available: {', '.join(available)})")
     if args.action not in actions:
         raise UsageError(f"--action: {args.action!r} is not one of {', '.join(actions)}")
-    true_size = _check_size("--true-size", args.true_size)
-    believed = true_size if args.believed_size is None else _check_size("--believed-size", args.believed_size)
-    world_domain = domains.load(args.domain)
-    n_blocks = world_domain.spec.n_blocks
-    loads = probe_loads(world_domain, args.action)
-    if args.load not in loads:
-        raise UsageError(f"--load: {args.load} is outside {loads.start}..{loads.stop - 1} "
-                         f"for {args.action}")
     if args.trials < 1:
         raise UsageError(f"--trials: {args.trials} must be at least 1")
     if args.seed < 0:
         raise UsageError(f"--seed: {args.seed} must not be negative")
 
-    from coordinator.domains import checked_options
+    from coordinator.domains import checked_options, options_of
 
     from .run import parse_options
 
     try:
-        options, _ = checked_options(args.domain, parse_options(args.options), n_blocks)
+        options, world_domain = checked_options(args.domain, parse_options(args.options))
     except ValueError as exc:
         raise UsageError(f"--option: {exc}") from None
-    for flag, value in (("--true-density", args.true_density), ("--believed-density", args.believed_density)):
-        if value is not None:
-            _check_density(flag, value)
-            if "density" not in {f.name for f in dataclasses.fields(world_domain.spec)}:
-                raise UsageError(f"{flag}: the {args.domain} domain has no block density to set")
-    if args.true_density is not None:
-        options["density"] = args.true_density
+    n_blocks = world_domain.spec.n_blocks
+    loads = probe_loads(world_domain, args.action)
+    if args.load not in loads:
+        raise UsageError(f"--load: {args.load} is outside {loads.start}..{loads.stop - 1} "
+                         f"for {args.action}")
+    L = world_domain.L
+    truth, belief = _pairs("--truth", args.truth), _pairs("--belief", args.belief)
+    _SPELLED.clear()
+    for flag, values, alias, value, checked in (
+            ("--truth", truth, "--true-size", args.true_size, _check_size),
+            ("--belief", belief, "--believed-size", args.believed_size, _check_size),
+            ("--truth", truth, "--true-density", args.true_density, _check_density),
+            ("--belief", belief, "--believed-density", args.believed_density, _check_density)):
+        _with_alias(flag, values, alias.split("-")[-1], alias, None if value is None else checked(alias, value))
+    for flag, values in (("--truth", truth), ("--belief", belief)):
+        if "size" in values:
+            _check_size(f"{flag} size", values["size"])
+    if "size" not in L.names:
+        for flag, given in (("--true-size", args.true_size), ("--believed-size", args.believed_size)):
+            if given is not None:
+                raise UsageError(f"{flag}: the {args.domain} domain has no size in L (properties: "
+                                 f"{', '.join(L.names)}); set --truth/--belief NAME=VALUE")
+    takes = probe_keywords(world_domain)
+    floats = {k for k, v in options_of(world_domain).items() if isinstance(v, float)}
+    # A truth outside L that the physics holds as an option (the density without
+    # unknown_density) is the probed world's option, as in `tmoc run`.
+    for name in [n for n in truth if n not in L.names]:
+        if name not in floats:
+            raise UsageError(f"{_flag('--truth', name)}: not a property of L for domain {args.domain!r} "
+                             f"(properties: {', '.join(L.names)})")
+        options[name] = truth.pop(name)
+    for name in truth:
+        if name != "size" and not ({"*", "truth"} & takes) and name not in floats:
+            raise UsageError(f"{_flag('--truth', name)}: the {args.domain} domain's probe does not read it")
+        if name != "size" and name in floats and not ({"*", "truth"} & takes):
+            options[name] = truth[name]
+    for name in belief:
+        if name not in L.names and f"believed_{name}" not in takes:
+            raise UsageError(f"{_flag('--belief', name)}: the {args.domain} domain's probe does not read a "
+                             f"belief of {name}: it is not a property of L (properties: {', '.join(L.names)}) "
+                             f"and does not enter Y")
+        if name != "size" and not ({"*", "belief"} & takes) and f"believed_{name}" not in takes:
+            raise UsageError(f"{_flag('--belief', name)}: the {args.domain} domain's probe does not read a belief of it")
+    try:
+        options, world_domain = checked_options(args.domain, options)
+    except ValueError as exc:
+        raise UsageError(f"--truth: {exc}") from None
+    defaults = dict(zip(L.names, map(float, L.truth)))
+    full_truth = {**defaults, **truth, **{n: float(options[n]) for n in L.names if n in options and n not in truth}}
+    full_belief = {**full_truth, **{n: v for n, v in belief.items() if n in L.names}}
+    from sim_workers.properties import PropertyError
+
+    for flag, row in (("--truth", full_truth), ("--belief", full_belief)):
+        try:
+            world_domain.properties(world_domain.props_from_row(L.truth_row(row, n_blocks, False)))
+        except PropertyError as exc:
+            raise UsageError(f"{flag} {str(exc).removeprefix('truth.')}") from None
+    # A belief the probe reads by its own keyword (stack_and_push: believed_density).
+    believed_kw = {f"believed_{n}": v for n, v in belief.items() if f"believed_{n}" in takes}
+    believed_density = believed_kw.pop("believed_density", None)
+    if believed_density is not None:
+        _check_density(_flag("--belief", "density"), believed_density)
     from sim_workers.engines import EngineError, check_engine
 
     try:
@@ -140,17 +226,23 @@ def run(args: argparse.Namespace) -> int:
     except EngineError as exc:
         raise UsageError(str(exc)) from None
     options["engine"] = engine
+    sized = "size" in L.names
+    true_size = full_truth["size"] if sized else math.nan
+    believed = full_belief["size"] if sized else math.nan
     try:
         result = probe(args.action, true_size, believed, load_k=args.load, trials=args.trials,
                        seed=args.seed, n_blocks=n_blocks, domain=args.domain, options=options,
-                       believed_density=args.believed_density)
+                       believed_density=believed_density, truth=full_truth, belief=full_belief,
+                       believed_kw=believed_kw)
     except ValueError as exc:
         if str(exc).startswith("believed_density:"):
             raise UsageError(f"--believed-density: {str(exc).split(': ', 1)[1]}") from None
         raise
     if args.json:
         out = {"domain": args.domain, **result.to_dict(), "seed": args.seed, "n_blocks": n_blocks,
-               "engine": engine}
+               "engine": engine, "truth": full_truth, "belief": full_belief}
+        if not sized:
+            out["true_size"] = out["believed_size"] = None
         print(json.dumps(out, sort_keys=True))
         return 0
     load = f", load {result.load}" if args.action != "pickup" else ""
@@ -160,8 +252,12 @@ def run(args: argparse.Namespace) -> int:
         if result.believed_density is not None:
             dens += f" believed {result.believed_density:g}"
         dens += " kg/m^3"
+    if sized:
+        what = f"true size {true_size:g} m, believed {believed:g} m"
+    else:
+        what = ("truth " + ", ".join(f"{n}={v:g}" for n, v in full_truth.items())
+                + "; belief " + ", ".join(f"{n}={v:g}" for n, v in full_belief.items()))
     print(f"{args.domain} {args.action}: {result.successes}/{result.trials} succeeded, "
-          f"success rate {result.success_rate:.3f} (true size {true_size:g} m, "
-          f"believed {believed:g} m{load}{dens}, seed {args.seed}"
+          f"success rate {result.success_rate:.3f} ({what}{load}{dens}, seed {args.seed}"
           f"{', engine ' + engine if args.engine else ''})")
     return 0

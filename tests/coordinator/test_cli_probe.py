@@ -74,7 +74,6 @@ def test_bad_input_names_the_flag_and_exits_2(capsys, extra, flag):
 
 @pytest.mark.parametrize("args", [
     ["probe", "--true-size", "0.045"],                                   # --action missing
-    ["probe", "--action", "pickup"],                                     # --true-size missing
     ["probe", "--action", "pickup", "--true-size", "big"],
     ["probe", "--action", "pickup", "--true-size", "0.045", "--trials", "many"],
     ["probe", "--action", "pickup", "--true-size", "0.045", "--load", "2.5"],
@@ -110,7 +109,8 @@ def test_believed_density_shows_what_a_light_grip_costs(capsys):
 
 
 @pytest.mark.parametrize("extra, message", [
-    (["--domain", "container", "--believed-density", "1000"], "--believed-density: mass does not enter Y"),
+    (["--domain", "container", "--believed-density", "1000"],
+     "--believed-density: the container domain's probe does not read a belief of density"),
     (["--domain", "stack_and_push", "--believed-density", "-5"], "--believed-density: -5.0 kg/m^3 is outside"),
     (["--domain", "stack_and_push", "--true-density", "nan"], "--true-density: nan is not a finite number"),
 ])
@@ -118,3 +118,31 @@ def test_bad_densities_exit_2_naming_the_flag(extra, message, capsys):
     code = main(["probe", "--true-size", "0.045", "--action", "pickup", "--trials", "1", *extra])
     err = capsys.readouterr().err
     assert code == 2 and message in err and "Traceback" not in err
+
+
+def test_truth_and_belief_by_the_names_of_L(capsys):
+    """Issue 39: `--truth NAME=V` / `--belief NAME=V` for any domain (`--true-size` and its
+    kin are their aliases), the default truth without either, and what the probe would
+    ignore refused by the flag the user typed."""
+    base = ["probe", "--domain", "container", "--action", "pickup", "--trials", "2", "--seed", "3", "--json"]
+    assert main(base) == 0                                     # the domain's default truth
+    default = json.loads(capsys.readouterr().out)
+    assert default["truth"] == {"size": 0.045} == default["belief"] and default["true_size"] == 0.045
+    assert main(base + ["--truth", "size=0.045", "--belief", "size=0.0315"]) == 0
+    named = json.loads(capsys.readouterr().out)
+    assert main(base + ["--true-size", "0.045", "--believed-size", "0.0315"]) == 0
+    assert json.loads(capsys.readouterr().out) == named and named["successes"] == 0
+    for extra, needle in ((["--truth", "mass=3"], "--truth mass: not a property of L"),
+                          (["--belief", "size=0.5"], "--belief size: 0.5 m is outside"),
+                          (["--truth", "size=abc"], "--truth size=abc: expected NAME=NUMBER"),
+                          (["--true-size", "0.04", "--truth", "size=0.05"], "--true-size: 0.04 disagrees")):
+        assert main(base + extra) == 2
+        err = capsys.readouterr().err
+        assert needle in err and err.count("\n") == 1, err
+    sp = ["probe", "--domain", "stack_and_push", "--action", "push", "--load", "2", "--trials", "2", "--json",
+          "--option", "unknown_density=true"]
+    assert main(sp + ["--truth", "density=2400", "--belief", "density=1650"]) == 0
+    by_name = json.loads(capsys.readouterr().out)
+    assert main(sp + ["--true-density", "2400", "--believed-density", "1650"]) == 0
+    assert json.loads(capsys.readouterr().out) == by_name
+    assert by_name["truth"] == {"size": 0.045, "density": 2400.0} and by_name["belief"]["density"] == 1650.0

@@ -140,3 +140,24 @@ def test_a_sigma_without_width_is_refused_by_name(chute_registered, options, nam
 
     with pytest.raises(ValidationError, match=named.replace(".", r"\.")):
         RunConfig(domain="chute", truth={"friction": 0.6}, options=options)
+
+
+def test_tmoc_probe_takes_the_chutes_truth_by_name_and_refuses_a_size(chute_registered, capsys):
+    """Issue 39: `tmoc probe` required --true-size for a domain that has no size (and
+    ignored it); the chute's truth is `--truth friction=V`, its belief `--belief`."""
+    import json
+
+    from coordinator.cli import main
+
+    base = ["probe", "--domain", "chute", "--action", "sweep", "--load", "4", "--trials", "2", "--json"]
+    rates = {}
+    for mu in (0.3, 0.7):
+        assert main(base + ["--truth", f"friction={mu}"]) == 0
+        out = json.loads(capsys.readouterr().out)
+        assert out["truth"] == {"friction": mu} and out["true_size"] is None
+        rates[mu] = out["success_rate"]
+    assert rates == {0.3: 1.0, 0.7: 0.0}
+    assert main(["probe", "--domain", "chute", "--action", "sweep", "--true-size", "0.045"]) == 2
+    assert "--true-size: the chute domain has no size in L (properties: friction)" in capsys.readouterr().err
+    assert main(base + ["--truth", "size=0.04"]) == 2
+    assert "--truth size: not a property of L for domain 'chute'" in capsys.readouterr().err

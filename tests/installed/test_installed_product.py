@@ -350,8 +350,8 @@ def test_the_chute_passes_check_domain_from_a_fresh_venv(with_chute):
     rates = {}
     for mu in (0.3, 0.7):
         proc = run_in(with_chute, [with_chute["tmoc"], "probe", "--domain", "chute", "--action", "sweep",
-                                   "--true-size", "0.045", "--load", "4", "--trials", "3", "--json",
-                                   "--option", f"true_friction={mu}"], timeout=300)
+                                   "--truth", f"friction={mu}", "--load", "4", "--trials", "3", "--json"],
+                      timeout=300)
         assert proc.returncode == 0, proc.stderr[-2000:]
         rates[mu] = json.loads(proc.stdout)["success_rate"]
     assert rates == {0.3: 1.0, 0.7: 0.0}, rates

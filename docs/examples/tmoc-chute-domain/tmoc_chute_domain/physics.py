@@ -366,18 +366,23 @@ class ChutePhysics(PhysicsDomain):
     # -- probes and T* --------------------------------------------------------------------------
     def probe_trial(self, action: str, true_size: float, believed_size: float, load_k: int,
                     rng: np.random.Generator, **kwargs) -> bool:
-        """A sweep of a train of `load_k` pucks at this world's ``true_friction`` (the
-        sizes are known here: `true_size` and `believed_size` are not read), placed and
-        timed with the reality gap's jitter; True when all of them are delivered."""
+        """A sweep of a train of `load_k` pucks at the truth's friction (``truth``, by L's
+        names, as `tmoc probe --truth friction=V` gives it; default this world's
+        ``true_friction``), Y at the ``belief`` (default the truth), placed and timed with
+        the reality gap's jitter; True when all of them are delivered. The sizes are known
+        here: `true_size` and `believed_size` are not read."""
         if action != "sweep":
             raise ValueError(f"action: {action!r} is not one of sweep")
-        truth = {"friction": np.full(self.n_blocks, self.spec.true_friction)}
+        given = kwargs.get("truth") or {}
+        truth = {"friction": np.full(self.n_blocks, float(given.get("friction", self.spec.true_friction)))}
+        believed = kwargs.get("belief") or {}
+        belief = {"friction": np.full(self.n_blocks, float(believed["friction"]))} if "friction" in believed else truth
         config = self.initial_configuration(truth)
         config = Configuration(config.robot, jitter_planar(rng, config.objects, range(self.n_blocks)))
         run_as = (lambda traj, a: executed(traj, a, rng, action_jitter(self, a)))
         with make_world(self) as world:
             config = world.reset(config, truth)
-            out = act(world, self, config, truth, f"sweep(p{load_k})", run_as=run_as)
+            out = act(world, self, config, belief, f"sweep(p{load_k})", run_as=run_as)
         return all(f"delivered(p{i + 1})" in out.state for i in range(load_k))
 
     def t_star_probe_jobs(self, n_blocks: int) -> list[tuple[str, int]]:
