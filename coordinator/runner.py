@@ -20,12 +20,9 @@ from .shard_pools import ShardPools
 
 def reality_for(config: RunConfig, session: Session) -> SimulatedReality:
     """The simulated real world holding the hidden truth, with the run's domain options."""
-    if len(session.L.names) > 1 or "size" not in session.L.names:
-        # the truth is a row of L, built like a particle's
-        truth = session.domain.props_from_row(session.truth_row())
-    else:
-        truth = session.domain.true_properties(config.sizes_variation)
-        truth["block_sizes"] = truth["block_sizes"] * (config.true_size / session.domain.spec.true_size)
+    # The truth is a row of L, built like a particle's (issue 39: one path; a size-only L
+    # scaled the domain's default sizes by true_size / default, one ulp off at most truths).
+    truth = session.domain.props_from_row(session.truth_row())
     failure = None if config.reality_fail is None else ContextFailure.parse(config.reality_fail)
     engine = {"engine": config.reality_engine} if config.reality_engine else {}
     return SimulatedReality(config.domain, {**domain_options(config), **engine}, truth, failure=failure,

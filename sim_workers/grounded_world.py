@@ -190,8 +190,9 @@ class GroundedWorld(abc.ABC):
         """
         now = self.observe()
         target = tr.sample(trajectory, np.array([start_time]))[0]
-        held = [i for i, a in enumerate(self.domain.object_names)
-                if f"is_holding(r,{a})" in self.domain.symbolic_state(now)]
+        # the protocol's word for what the hand holds (issue 39: not the block worlds' atom)
+        holding = self.domain.held_object(self.domain.symbolic_state(now))
+        held = [i for i, a in enumerate(self.domain.object_names) if a == holding]
         objects = now.objects.copy()
         dyaw = target[3] - now.robot[3]
         for i in held:
@@ -313,7 +314,7 @@ def act(world: GroundedWorld, domain, config: Configuration, believed: dict, act
     the action follows)."""
     key = domain.action_pose(believed, config, action)
     traj = domain.action_trajectory(config, action, key)
-    carried = any(atom.startswith("is_holding(") for atom in domain.symbolic_state(config))
+    carried = domain.held_object(domain.symbolic_state(config)) is not None
     start = 0.0 if carried else domain.transit_end_time(config, action, key)
     if run_as is not None:
         planned, traj = traj, run_as(traj, action)

@@ -400,3 +400,23 @@ def test_every_property_of_L_is_varied_by_the_checks():
 
     assert "density (by " in check_outcomes_depend_on_L(d)
     assert "5 values of density" in check_place_keeps_state(d)
+
+
+@pytest.mark.parametrize("domain, truth, variation", [
+    ("container", 0.046, False), ("container", 0.032, True), ("stack_and_push", 0.052, False)])
+def test_the_reality_holds_the_truth_exactly_by_one_path(domain, truth, variation):
+    """Issue 39: a size-only L scaled the domain's default sizes by true_size / default
+    (0.046 m came out one ulp off); the truth is L's row, built like a particle's."""
+    from coordinator.run_config import RunConfig
+    from coordinator.runner import reality_for
+    from coordinator.session import Session
+
+    session = Session(RunConfig(domain=domain, true_size=truth, sizes_variation=variation, particles=2,
+                                particle_budget="fixed", n_blocks=3))
+    reality = reality_for(session.config, session)
+    try:
+        sizes = np.asarray(reality.truth["block_sizes"])
+        want = np.array([truth * (1.2 if variation else 1.0), truth, truth])
+        assert np.array_equal(sizes, want), (sizes, want)
+    finally:
+        reality.close()
