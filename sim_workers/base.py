@@ -103,13 +103,6 @@ class PhysicsDomain(abc.ABC):
         with mass, pose and friction, which of them are the objects, the gripper, the
         physics settings. An engine backend builds it (the engine seam)."""
 
-    def build(self, client: int, props: dict) -> Any:
-        """Build the scene in pybullet client `client` (``sim_workers.engines``); the
-        handles the world drives."""
-        from .engines.pybullet_engine import build_scene    # (pybullet only where a world is built)
-
-        return build_scene(client, self.scene_description(self.properties(props)))
-
     @property
     def base_max_force(self) -> float:
         """The palm's force limit (N) when a trajectory sets none (``spec.base_max_force``)."""
@@ -196,9 +189,11 @@ class PhysicsDomain(abc.ABC):
         transit's collision check carries its box. Default: none is ever held."""
         return None
 
-    @abc.abstractmethod
     def check_action(self, action: str) -> None:
-        """ValueError naming what is wrong if `action` is not one this scene can execute."""
+        """ValueError naming what is wrong if `action` is not one this scene can execute
+        (default: no check; the service validates actions against the task half, and a
+        domain calls this from its own Y where a bad argument must be named)."""
+        return None
 
     # -- motion ----------------------------------------------------------------------------
     @abc.abstractmethod
@@ -215,9 +210,21 @@ class PhysicsDomain(abc.ABC):
                          transit: np.ndarray | None = None) -> float:
         """When the trajectory reaches the pre-pose (the particle worlds start there)."""
 
-    @abc.abstractmethod
+    @property
+    def carry_height(self) -> float:
+        """The tool point's height (m) for a transit over the scene: ``spec.carry_height``,
+        else the gripper's build height in the scene description."""
+        height = getattr(self.spec, "carry_height", None)
+        if height is None:
+            height = self.scene_description(self.properties(self.true_properties())).gripper.carry_height
+        return float(height)
+
     def default_transit(self, start: np.ndarray, pre: np.ndarray) -> np.ndarray:
-        """The unchecked path used when the motion planner finds none: (M, 5) waypoints."""
+        """The path used when the motion planner finds none, and the first candidate it
+        checks: (M, 5) waypoints up to the highest of ``carry_height`` and both ends,
+        across, and down (default; every built-in domain and the chute use this one)."""
+        z = max(self.carry_height, start[2], pre[2])
+        return np.array([start, [*start[:2], z, *start[3:]], [*pre[:2], z, *pre[3:]], pre])
 
     def transit_candidates(self, robot: np.ndarray, pre: np.ndarray) -> list[tuple[str, np.ndarray]]:
         """Paths the motion planner tries before RRT*: (name, (M, >=4) waypoints) each."""

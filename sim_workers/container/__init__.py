@@ -156,10 +156,6 @@ class ContainerDomain(PhysicsDomain):
         opening = sp.max_opening if opening is None else min(float(opening), sp.max_opening)
         return hand_boxes(sp.palm_half, sp.finger_half, sp.palm_offset, opening, held_size, sp.grip_depth)
 
-    def default_transit(self, start: np.ndarray, pre: np.ndarray) -> np.ndarray:
-        """Up, across at a safe height, down: (M, 5) waypoints."""
-        return trajectories.default_transit(self.spec, start, pre)
-
     def obstacles(self, config: Configuration, size) -> list[Box]:
         """Boxes (centre, half extents, rotation) of the container and every block
         not in the hand, for the motion planner's geometric collision check; `size` is the

@@ -15,6 +15,7 @@ from .. import reach
 from ..configuration import Configuration, quat_from_yaw, yaw_of
 from ..domains import Domain
 from ..grounded_world import REST_ANGULAR, REST_LINEAR, GroundedWorld
+from .pybullet_engine import build_scene
 
 
 class PybulletWorld(GroundedWorld):
@@ -43,7 +44,9 @@ class PybulletWorld(GroundedWorld):
 
     def _rebuild(self, props: dict) -> None:
         pb.resetSimulation(physicsClientId=self.client)
-        self.handles = self.domain.build(self.client, props)
+        own = getattr(self.domain, "build", None)       # a domain's own pybullet build (before issue 39)
+        self.handles = (own(self.client, props) if own is not None else
+                        build_scene(self.client, self.domain.scene_description(self.domain.properties(props))))
         self._weight = None
 
     def _apply(self, config: Configuration) -> None:

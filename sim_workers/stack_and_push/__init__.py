@@ -229,10 +229,6 @@ class StackAndPushDomain(PhysicsDomain):
         opening = sp.max_opening if opening is None else min(float(opening), sp.max_opening)
         return hand_boxes(sp.palm_half, sp.finger_half, sp.palm_offset, opening, held_size, sp.grip_depth)
 
-    def default_transit(self, start: np.ndarray, pre: np.ndarray) -> np.ndarray:
-        """Up, across at a safe height, down: (M, 5) waypoints."""
-        return trajectories.default_transit(self.spec, start, pre)
-
     def obstacles(self, config: Configuration, size) -> list[Box]:
         """Boxes (centre, half extents, rotation) of the rail walls and every block
         not in the hand or delivered, for the motion planner's collision check; `size` is

@@ -102,7 +102,7 @@ class _RePoseOnly(PybulletWorld):
         props = self.domain.properties(props)
         if self.props is None or not np.array_equal(props["block_sizes"], self.props["block_sizes"]):
             pb.resetSimulation(physicsClientId=self.client)
-            self.handles = self.domain.build(self.client, props)
+            self._rebuild(props)
             self.props = props
             self._saved = pb.saveState(physicsClientId=self.client)
         else:

@@ -279,10 +279,6 @@ class ChutePhysics(PhysicsDomain):
         pre[2] = key[2] + 0.08
         return pre
 
-    def default_transit(self, start: np.ndarray, pre: np.ndarray) -> np.ndarray:
-        z = max(self.spec.carry_height, start[2], pre[2])
-        return np.array([start, [*start[:2], z, *start[3:]], [*pre[:2], z, *pre[3:]], pre])
-
     def _phases(self, config: Configuration, action: str, key: np.ndarray, transit):
         sp = self.spec
         start = config.robot.copy()
