@@ -36,7 +36,7 @@ def test_posteriors_cover_the_truth_across_a_small_grid():
                         particles=12, particle_budget="fixed", episodes=2, seed=1, max_steps=40)
         result = run(cfg)
         posterior = result["episodes"][-1]["posterior"]
-        L = load(domain, n_blocks=4, **options).L
+        L = load(domain, n_blocks=4, **options).physics.L
         prior_std = {n: (float(hi) - float(lo)) / math.sqrt(12.0) for n, lo, hi in zip(L.names, L.low, L.high)}
         for name, _, t, mean, std in true_row(result["config"], posterior):
             zs.append((domain, size, name, abs(mean - t) / std if std > 0 else float("inf")))
