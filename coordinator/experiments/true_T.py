@@ -34,9 +34,20 @@ def probe_jobs(n_blocks: int, domain: str) -> list[tuple[str, int]]:
     return _physics(domain).t_star_probe_jobs(n_blocks)
 
 
-def t_star_params(spec: Spec, n_blocks: int = 8, setting: Setting | None = None) -> dict:
+def run_object_count(spec: Spec, setting: Setting | None = None) -> int:
+    """The object count the experiment's runs have: ``--set n_objects=N`` (or n_blocks, or
+    a setting's own), else the domain's default (issue 39: T* was probed for 8 objects
+    whatever the runs had, and the optimum judged for 8)."""
+    fields = {**spec.run_fields, **(setting.overrides if setting is not None else {})}
+    given = fields.get("n_objects", fields.get("n_blocks"))
+    return int(given) if given is not None else int(_physics(spec.domain).n_blocks)
+
+
+def t_star_params(spec: Spec, n_blocks: int | None = None, setting: Setting | None = None) -> dict:
     """The probe parameters of `spec`'s T* (also the key of its cache); a setting with its
     own truth (``Setting.t_star``: e.g. the sweep's true size and density) overrides them."""
+    if n_blocks is None:
+        n_blocks = run_object_count(spec, setting)
     params = {"true_size": spec.true_size, "n_blocks": n_blocks, "trials": spec.probe_trials,
               "seed": spec.probe_seed}
     if spec.domain != DEFAULT_DOMAIN:       # (caches from before domains stay valid)

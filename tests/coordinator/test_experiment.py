@@ -80,6 +80,15 @@ def test_convergence_episode():
     assert (episode, final, window) == (4, 100.0, 1)
 
 
+def test_t_star_is_probed_for_the_runs_object_count():
+    """Issue 39: T* was probed (and the optimum judged) for 8 objects whatever the runs had."""
+    spec = ex.Spec(name="compare", runs=1, episodes=1, particles=4)
+    assert ex.t_star_params(spec)["n_blocks"] == 8                          # the container's own
+    spec.run_fields = {"n_objects": 3}
+    assert ex.t_star_params(spec)["n_blocks"] == 3
+    assert len(ex.probe_jobs(3, "container")) < len(ex.probe_jobs(8, "container"))
+
+
 def test_true_T_is_estimated_once_and_cached(tmp_path):
     calls = []
 
