@@ -20,7 +20,7 @@ from contextlib import asynccontextmanager
 from fastapi import APIRouter, Depends, FastAPI
 from starlette.concurrency import run_in_threadpool
 
-from coordinator.shard_pools import ShardPools
+from coordinator.distributed.shard_pools import ShardPools
 
 from . import schemas as S
 from .auth import CookieSessions, LoginThrottle

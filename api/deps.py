@@ -10,7 +10,7 @@ from typing import Annotated
 from fastapi import Depends, HTTPException, Path, Request
 from fastapi.security import HTTPAuthorizationCredentials, HTTPBearer
 
-from coordinator.shard_pools import ShardPools
+from coordinator.distributed.shard_pools import ShardPools
 
 from .auth import CookieSessions, authorised
 from .exports import Exports

@@ -1,5 +1,5 @@
 """``GET /v1/tasks/{id}/export`` and ``GET /v1/sessions/{id}/export``: a task's or a robot
-session's steps as MCAP (``coordinator.export``), built from the stored step records.
+session's steps as MCAP (``coordinator.integrations.export``), built from the stored step records.
 
 Streamed and bounded (issue 38: 42 concurrent exports stalled the service, a client that
 did not read held an 8 MiB spool, and nothing was sent until a whole MCAP was built):
@@ -29,7 +29,7 @@ from typing import AsyncIterator, BinaryIO
 from starlette.concurrency import run_in_threadpool
 from starlette.responses import StreamingResponse
 
-from coordinator.export import write_mcap
+from coordinator.integrations.export import write_mcap
 
 from .store import Store
 

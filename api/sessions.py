@@ -18,9 +18,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from coordinator.observations import ObservationError, from_canonical, parse_observation
-from coordinator.reality import Observation
-from coordinator.shard_pools import ShardPools
+from coordinator.loop.observations import ObservationError, from_canonical, parse_observation
+from coordinator.loop.reality import Observation
+from coordinator.distributed.shard_pools import ShardPools
 
 from .schemas import run_config
 from .store import Store, new_id
@@ -67,7 +67,7 @@ class SessionGone(Exception):
 class LiveSession:
     id: str
     spec: dict
-    session: object                      # coordinator.session.Session
+    session: object                      # coordinator.loop.session.Session
     step: int = 0                        # observations in the current episode
     status: str = "active"
     last_reply: dict | None = None       # {step_id, action, observation, reply} of the last step
@@ -195,7 +195,7 @@ class SessionManager:
         row = self.store.get_session(session_id, checkpoint=True)
         if row is None:  # pragma: no cover - deleted between the two reads
             raise SessionGone(session_id)
-        from coordinator.session import Session
+        from coordinator.loop.session import Session
 
         session = Session.from_checkpoint(row["checkpoint"])
         live = LiveSession(session_id, row["spec"], session, status=row["status"],
@@ -312,7 +312,7 @@ class SessionManager:
 
     # -- operations (blocking: call them in a thread) --------------------------------
     def create(self, spec: dict, initial: dict | None) -> tuple[str, dict | None]:
-        from coordinator.session import Session
+        from coordinator.loop.session import Session
 
         config = run_config(spec)
         session = Session(config)

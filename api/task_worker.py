@@ -1,5 +1,5 @@
 """The task worker: one thread that runs queued tasks one at a time, in submission order,
-with ``coordinator.runner.run``.
+with ``coordinator.loop.runner.run``.
 
 Every episode boundary stores the episode record and the run's checkpoint in one SQLite
 transaction; cancellation and shutdown stop a run before its next action (the episode
@@ -17,7 +17,7 @@ import traceback
 from contextlib import nullcontext
 
 from coordinator.agents import agent_spec
-from coordinator.shard_pools import ShardPools
+from coordinator.distributed.shard_pools import ShardPools
 
 from .notify import Notifier
 from .schemas import run_config
@@ -144,7 +144,7 @@ class TaskWorker:
         return StoreFrameSink(self.store, task_id, self.max_frames)
 
     def _run(self, task_id: str) -> None:
-        from coordinator.runner import run
+        from coordinator.loop.runner import run
 
         row = self.store.claim_task(task_id)
         if row is None:

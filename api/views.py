@@ -114,7 +114,7 @@ _plot_lock = threading.Lock()
 
 
 def render_png(spec: dict, records: list[dict]) -> bytes:
-    from coordinator.runner import plot_curve
+    from coordinator.loop.runner import plot_curve
 
     config = dict(spec)
     config.setdefault("true_size", float("nan"))
@@ -126,7 +126,7 @@ def render_png(spec: dict, records: list[dict]) -> bytes:
 
 def prior(spec: dict) -> tuple[dict | None, dict]:
     """The belief a run starts from (exactly: the same seeded draw as the run)."""
-    from coordinator.session import Session
+    from coordinator.loop.session import Session
 
     s = Session(S.run_config(spec))
     return (s.belief.summary() if s.belief is not None else None), s.posterior()

@@ -20,7 +20,7 @@ os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")
 
 from coordinator.commands.run import parse_options, parse_truth  # noqa: E402
 from coordinator.run_config import RunConfig  # noqa: E402
-from coordinator.runner import run  # noqa: E402
+from coordinator.loop.runner import run  # noqa: E402
 
 
 def one(budget: str, args) -> tuple[list[dict], float]:

@@ -41,9 +41,9 @@ SUITES: dict[str, list[tuple[str, dict]]] = {
 
 def run_case(label: str, fields: dict, seed: int, args) -> dict:
     """One run; the per-dimension truth, posterior and episode figures as a JSON-able row."""
-    from coordinator.fanout import ShardPool
+    from coordinator.distributed.fanout import ShardPool
     from coordinator.run_config import RunConfig
-    from coordinator.runner import run
+    from coordinator.loop.runner import run
 
     cfg = RunConfig(**{"particles": args.particles, "episodes": args.episodes, "seed": seed,
                        **fields, **args.set})

@@ -25,9 +25,9 @@ sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
 from coordinator.particle_filter.belief import Belief, mode_mask  # noqa: E402
 from coordinator.commands.run import parse_options  # noqa: E402
-from coordinator.reality import Observation  # noqa: E402
+from coordinator.loop.reality import Observation  # noqa: E402
 from coordinator.run_config import RunConfig  # noqa: E402
-from coordinator.session import PendingStep, Session  # noqa: E402
+from coordinator.loop.session import PendingStep, Session  # noqa: E402
 from sim_workers.shard import Shard, decode_state  # noqa: E402
 
 

@@ -19,7 +19,7 @@ import time
 sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
 from coordinator.run_config import RunConfig  # noqa: E402
-from coordinator.runner import run  # noqa: E402
+from coordinator.loop.runner import run  # noqa: E402
 
 
 def raw_steps_per_second(args: tuple[str, int]) -> float:

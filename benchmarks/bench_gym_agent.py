@@ -26,10 +26,10 @@ import numpy as np
 
 os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")
 
-from coordinator.gym_baselines import tabular_q  # noqa: E402
-from coordinator.gym_env import TmocEnv  # noqa: E402
+from coordinator.baselines.gym_baselines import tabular_q  # noqa: E402
+from coordinator.integrations.gym_env import TmocEnv  # noqa: E402
 from coordinator.run_config import RunConfig  # noqa: E402
-from coordinator.runner import run  # noqa: E402
+from coordinator.loop.runner import run  # noqa: E402
 
 
 def tmoc_utilities(truth: float, seed: int, blocks: int, episodes: int) -> list[float]:

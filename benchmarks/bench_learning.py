@@ -49,7 +49,7 @@ from coordinator import experiments as ex  # noqa: E402
 from coordinator.commands.experiment import spec_from_args  # noqa: E402
 from coordinator.experiments.tails import SHARP_RATIO  # noqa: E402
 from coordinator.experiments.sweep import BY_EPISODE  # noqa: E402
-from coordinator.fanout import init_ray  # noqa: E402
+from coordinator.distributed.fanout import init_ray  # noqa: E402
 
 SUMMARY_KEYS = (f"near_optimum_by_episode_{BY_EPISODE}", "coverage", "truths_covered", "mean_regret_last",
                 "fallbacks_per_episode")

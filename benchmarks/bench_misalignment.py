@@ -17,9 +17,9 @@ import numpy as np
 
 os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")
 
-from coordinator.fanout import ShardPool  # noqa: E402
+from coordinator.distributed.fanout import ShardPool  # noqa: E402
 from coordinator.run_config import RunConfig  # noqa: E402
-from coordinator.session import Session  # noqa: E402
+from coordinator.loop.session import Session  # noqa: E402
 
 ACTION = "pickup(r,b1,init)"
 SHIFTS_MM = (-3.46, -2.0, -1.0, 0.0, 1.0, 2.0, 3.46)

@@ -4,7 +4,7 @@ A ``ray.cluster_utils.Cluster`` on this machine (every node its own raylet, as s
 machines would be; its CPU count is Ray's logical resource, the OS shares this machine's
 cores). The workload is bench_worlds' three actions (pickup, stack onto a pile, push a
 loaded tray), one batch of particles (sizes from the prior) per action, sent through a
-``coordinator.fanout.ShardPool`` exactly as a run does: one remote call per shard per
+``coordinator.distributed.fanout.ShardPool`` exactly as a run does: one remote call per shard per
 action. With k nodes the pool holds one shard per node (it is re-planned with
 ``refresh()`` after each node joins, as the service does between tasks).
 
@@ -32,7 +32,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from bench_worlds import make_cases, particle_sizes  # noqa: E402
 
-from coordinator.fanout import ShardPool  # noqa: E402
+from coordinator.distributed.fanout import ShardPool  # noqa: E402
 from sim_workers.domains import load  # noqa: E402
 
 

@@ -46,7 +46,7 @@ import numpy as np
 
 from api.client import TMOCClient
 from bench_api import free_port, pct   # benchmarks/ is on sys.path when run as a script
-from coordinator.reality import SimulatedReality
+from coordinator.loop.reality import SimulatedReality
 
 TOKEN = "soak-token-0123456789"
 TASK = {"agent": "tmoc", "particles": 8, "episodes": 2, "n_blocks": 4, "max_steps": 30, "seed": 7,

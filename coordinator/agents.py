@@ -16,7 +16,7 @@ class AgentSpec:
                     ``grasp_actions``, grounded at L drawn uniformly from the prior each time,
                     every other action at the prior mean: a random grasp within a reasonable
                     range) or "bandit" (L chosen per action kind by trial and error:
-                    ``coordinator.grounding_bandit``)
+                    ``coordinator.baselines.grounding_bandit``)
     """
 
     name: str

@@ -22,7 +22,7 @@ from sim_workers.grounded_world import GroundedWorld
 from sim_workers.properties import PropertyError
 
 from .domains import Domain, load, spec
-from .transit import workspace_of
+from .loop.transit import workspace_of
 
 
 @dataclass(frozen=True)
@@ -230,7 +230,7 @@ def check_determinism(d: Domain, ray_actors: bool = True) -> str:
 
     from sim_workers.shard import remote_shard
 
-    from .fanout import init_ray
+    from .distributed.fanout import init_ray
 
     init_ray()
     Actor = remote_shard(num_cpus=0)

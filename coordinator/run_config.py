@@ -160,11 +160,11 @@ class RunConfig(BaseModel):
     sim_weight: float = Field(1.0, ge=0, le=100)
     # How simulated outcomes enter T where reality disagrees (issue 24): "power_prior"
     # discounts each context's simulated counts by how well they predict its real outcomes
-    # (coordinator.transition_model.sim_discount); "none" counts them at sim_weight always
+    # (coordinator.transition.transition_model.sim_discount); "none" counts them at sim_weight always
     # (every run before the field; stored settings without it keep it).
     sim_discount: Literal["power_prior", "none"] = "power_prior"
     # A reality gap the particle worlds do not know, for simulated realities: "ACTION:K"
-    # makes every ACTION in a T context >= K fail in reality only (coordinator.reality.
+    # makes every ACTION in a T context >= K fail in reality only (coordinator.loop.reality.
     # ContextFailure), e.g. "stack:3" (stacks onto 3 or more blocks). None: no such gap.
     # Simulated realities only: a robot session has no such field.
     reality_fail: str | None = Field(None, max_length=64)
@@ -286,7 +286,7 @@ class RunConfig(BaseModel):
         if self.reality_fail is None:
             return self
         from coordinator.domains import task_half
-        from coordinator.reality import ContextFailure
+        from coordinator.loop.reality import ContextFailure
 
         try:
             failure = ContextFailure.parse(self.reality_fail)

@@ -116,7 +116,7 @@ class TaskDomain(abc.ABC):
 
     def grounded_actions(self, n_blocks: int) -> tuple[str, ...]:
         """Every grounded action of a task of `n_blocks` objects, in a fixed order (the
-        discrete actions of the Gymnasium view, ``coordinator.gym_env``)."""
+        discrete actions of the Gymnasium view, ``coordinator.integrations.gym_env``)."""
         raise NotImplementedError(f"domain {self.name!r} does not list its grounded actions")
 
     def atoms(self, n_blocks: int) -> tuple[str, ...]:

@@ -69,7 +69,7 @@ class GroundedWorld(abc.ABC):
     bodies cost most of a step), guarded: if a kept body comes near a left-out one, the
     action is run again in the full world. After such an action the world needs a reset; a
     world that runs several actions in a row (the simulated robot of
-    ``coordinator.reality``, the physics tests) is built without ``leave_out``.
+    ``coordinator.loop.reality``, the physics tests) is built without ``leave_out``.
     """
 
     engine = ""

@@ -4,7 +4,7 @@ Friction is scaled per world by U(1 +- friction); objects are placed with N(0, p
 clipped at 2 std and turned by U(+-yaw); a domain's ``execution_jitter`` makes the real
 arm run an action kind U(1 +- jitter) times faster or slower than planned (``executed``). The
 probe's trials and the coordinator's simulated reality
-(``coordinator.reality.SimulatedReality``) both draw from here, so the gap a probe
+(``coordinator.loop.reality.SimulatedReality``) both draw from here, so the gap a probe
 measures is the gap the loop meets.
 
 What the simulated reality *reports* is noisy too (``SensorNoise``, issue 37): each weighed

@@ -111,7 +111,7 @@ def remote_shard(num_cpus: float = 1.0):
     """The Ray actor class: restarted by Ray when its process dies, its task retried.
 
     When a whole node is lost, a restart may find no room on the surviving nodes (they
-    already run their own shards); ``coordinator.fanout.ShardPool`` then drops that node's
+    already run their own shards); ``coordinator.distributed.fanout.ShardPool`` then drops that node's
     shards and re-runs their batches on the survivors instead of waiting for a restart."""
     import ray
 

@@ -24,7 +24,7 @@ router = APIRouter()
 
 def _prior_table(spec: dict) -> list[dict]:
     """T before the first episode (the optimistic prior: p 1, no counts)."""
-    from coordinator.session import Session
+    from coordinator.loop.session import Session
 
     return Session(S.run_config(spec)).transition_table()
 

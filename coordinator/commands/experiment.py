@@ -189,10 +189,10 @@ def main(args) -> int:
             raise UsageError(f"--resume: {out} already holds {len(found)} run files of "
                              f"`{spec.name}` (e.g. {found[0]}); pass --resume to reuse them, "
                              "or choose another --out")
-    from ..fanout import init_ray
+    from ..distributed.fanout import init_ray
 
     if args.log_to is not None:
-        from ..tracker import TrackerError, parse_log_to
+        from ..integrations.tracker import TrackerError, parse_log_to
 
         try:
             parse_log_to(args.log_to)

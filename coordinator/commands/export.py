@@ -71,7 +71,7 @@ def _counts(path: Path) -> dict:
 
 
 def main(args) -> int:
-    from ..export import ExportError, export_run
+    from ..integrations.export import ExportError, export_run
 
     out = Path(args.out)
     remote = args.task or args.session

@@ -10,7 +10,7 @@ from pydantic import ValidationError
 
 from . import UsageError
 from ..run_config import RunConfig
-from ..step_record import STEPS_FILE
+from ..loop.step_record import STEPS_FILE
 
 
 # Flags and the RunConfig fields they set (the rest, e.g. pose_rule or error_rate, come from
@@ -213,7 +213,7 @@ def main(args) -> int:
                              "installed (pip install pybullet, where it builds), or leave --frames out")
     tracker = None
     if getattr(args, "log_to", None):
-        from ..tracker import TrackerError, open_tracker
+        from ..integrations.tracker import TrackerError, open_tracker
 
         try:
             tracker = open_tracker(args.log_to)
@@ -222,7 +222,7 @@ def main(args) -> int:
     if args.print_config:
         print(json.dumps(config.model_dump(mode="json"), indent=2))
         return 0
-    from ..runner import run, write_result
+    from ..loop.runner import run, write_result
     from tqdm import tqdm
 
     bar = tqdm(total=config.episodes, desc=f"{config.agent}", unit="ep", disable=args.no_progress)
@@ -252,7 +252,7 @@ def main(args) -> int:
 
     sink = None
     if args.frames:
-        from ..frames import DirectorySink
+        from ..integrations.frames import DirectorySink
 
         sink = DirectorySink(Path(args.out) / "frames")
     try:

@@ -15,7 +15,7 @@ import os
 import socket
 import sqlite3
 
-from ..reaper import clean, start_reaper
+from ..distributed.reaper import clean, start_reaper
 from ..run_config import field_bounds
 from . import UsageError
 

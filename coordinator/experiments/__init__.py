@@ -1,7 +1,7 @@
 """The paper's simulation experiments as one command each (`tmoc experiment NAME`).
 
 An experiment is a list of *settings* (an agent, a particle count, a variation) times
-``runs`` independent, seeded runs of ``coordinator.runner.run``; the runs go out over the
+``runs`` independent, seeded runs of ``coordinator.loop.runner.run``; the runs go out over the
 Ray cluster, each finished run is written to ``DIR/runs/<setting>/<r>.json`` as it
 finishes, and from the run files come ``DIR/NAME.csv``, ``DIR/NAME.json``, ``DIR/NAME.md``
 and ``DIR/NAME.png``.

@@ -14,7 +14,7 @@ A long run also sends its checkpoint to the driver every ``checkpoint_s`` second
 ``<r>.partial.json``; ``--resume`` continues it from there with the same episodes as an
 uninterrupted run.
 
-The sweep's runs also keep their step records (``coordinator.step_record``, as ``tmoc run``
+The sweep's runs also keep their step records (``coordinator.loop.step_record``, as ``tmoc run``
 writes them to steps.jsonl: ``tails.run_tails`` counts failure loops from them, an
 offline judge can re-filter them) as ``<r>.steps.jsonl`` beside the run file; a checkpoint
 carries those of the episodes so far.
@@ -40,8 +40,8 @@ def _run_remote():
     def run_task(config: dict, key: str, resume: dict | None, progress, checkpoint_s: float | None,
                  log_to: tuple[str, str] | None = None, keep_steps: bool = False):
         from ..agents import agent_spec
-        from ..runner import run
-        from ..shard_pools import ShardPools
+        from ..loop.runner import run
+        from ..distributed.shard_pools import ShardPools
 
         cfg = RunConfig(**config)
         last = [time.monotonic()]
@@ -52,7 +52,7 @@ def _run_remote():
             steps = [] if resume is None else (list(resume["steps"]) if "steps" in resume else None)
         tracker = None
         if log_to is not None:              # (value, run name): one event folder per run
-            from ..tracker import open_tracker
+            from ..integrations.tracker import open_tracker
 
             tracker = open_tracker(*log_to)
 

@@ -48,7 +48,7 @@ class RefilterError(ValueError):
 # ----------------------------------------------------------------------------- the run
 def load_run(run_dir) -> tuple[object, list[dict], list[dict]]:
     """(RunConfig, step records, episode records) of a ``tmoc run --out`` directory."""
-    from ..export import ExportError, read_run
+    from ..integrations.export import ExportError, read_run
     from ..run_config import stored_run_config
 
     try:
@@ -233,7 +233,7 @@ def reference_posterior(run_dir, *, grid: int = DEFAULT_GRID, refine: Refine = "
     if pool is not None:
         simulate = pool.simulate if hasattr(pool, "simulate") else pool
         return _reference(simulate, model, steps, len(episodes), grid, refine, draws, seed)
-    from ..shard_pools import ShardPools
+    from ..distributed.shard_pools import ShardPools
 
     with ShardPools(ray_address, config.shards, max_pools=1, own_ray_thread=False) as pools:
         with pools.lease(config.scene) as own:

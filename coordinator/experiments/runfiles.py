@@ -41,7 +41,7 @@ def _config_diff(stored: dict, wanted: dict) -> str:
     return ", ".join(f"{k}={stored.get(k)!r} (asked {wanted.get(k)!r})" for k in keys)
 
 
-# What a checkpoint needs to be continued (coordinator.session.Session.from_checkpoint).
+# What a checkpoint needs to be continued (coordinator.loop.session.Session.from_checkpoint).
 CHECKPOINT_KEYS = frozenset({"version", "config", "belief", "experience", "rng", "episode", "episodes",
                              "particle_actions", "particle_steps"})
 

@@ -58,7 +58,7 @@ def true_row(config: dict, posterior: dict) -> list[tuple[str, int | None, float
 
 def steps_path(out: Path, setting, r: int) -> Path:
     """Run r's step records beside its run file: ``DIR/runs/<setting>/<r>.steps.jsonl``,
-    one ``coordinator.step_record`` a line, as ``tmoc run``'s steps.jsonl (the sweep keeps
+    one ``coordinator.loop.step_record`` a line, as ``tmoc run``'s steps.jsonl (the sweep keeps
     them; runs made before it did have none)."""
     return Path(out) / "runs" / setting.key / f"{r}.steps.jsonl"
 
@@ -103,7 +103,7 @@ def run_tails(records: Sequence[dict] | None, episodes: Sequence, optimum: float
               reference: Mapping[str, Mapping] | None = None) -> dict:
     """One run's tails, from its step records and episodes alone (pure).
 
-    `records`: the run's step records in order (``coordinator.step_record``: ``episode``,
+    `records`: the run's step records in order (``coordinator.loop.step_record``: ``episode``,
     ``action``, ``success`` are read), or None where the run kept none (then the failure
     figures are None). `episodes`: each episode's utility, or its record (``utility``).
     `optimum`: the optimum's expected utility under the truth's T* (None: not judged
@@ -220,7 +220,7 @@ def summarize_tails(tails: Sequence[dict], labels: Sequence[str] | None = None) 
 def run_dir_tails(run_dir: Path, optimum: float | None, reference: Mapping[str, Mapping] | None = None) -> dict:
     """`run_tails` of a ``tmoc run`` directory (its ``steps.jsonl`` and ``result.json``),
     judged against the property means of L (per-block entries as their mean)."""
-    from ..step_record import STEPS_FILE
+    from ..loop.step_record import STEPS_FILE
 
     d = Path(run_dir)
     result = json.loads((d / "result.json").read_text())

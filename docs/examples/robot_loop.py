@@ -19,7 +19,7 @@ import os
 import numpy as np
 
 from api.client import TMOCClient
-from coordinator.reality import SimulatedReality
+from coordinator.loop.reality import SimulatedReality
 
 
 def main() -> int:

@@ -128,7 +128,7 @@ def probability(value: object, field: str) -> float:
 
 def probabilities(value: object, field: str, n: int, meaning: str) -> np.ndarray:
     # One block, one context: T gives an action whose only context is 0 as a number
-    # (coordinator.transition_model.to_planner), so a number stands for the list of one.
+    # (coordinator.transition.transition_model.to_planner), so a number stands for the list of one.
     if n == 1 and is_number(value):
         return np.array([probability(value, f"{field}[0]")])
     if isinstance(value, (str, bytes, Mapping)) or not isinstance(value, (Sequence, np.ndarray)):

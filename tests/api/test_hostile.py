@@ -14,7 +14,7 @@ import httpx
 import numpy as np
 import pytest
 
-from coordinator.reality import SimulatedReality
+from coordinator.loop.reality import SimulatedReality
 from planner import stack_and_push_symbolic as sps
 from planner import symbolic as sy
 
@@ -454,7 +454,7 @@ def test_after_kill_9_ray_goes_within_seconds(tmp_path):
     a fixed 60 s for a GCS that is gone). The server's reaper takes them down."""
     import signal
 
-    from coordinator.reaper import alive, descendants
+    from coordinator.distributed.reaper import alive, descendants
 
     srv = Server(tmp_path / "k9.sqlite", token=None).start()
     try:

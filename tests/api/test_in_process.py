@@ -74,7 +74,7 @@ def test_a_robot_sessions_steps_export_as_mcap_without_ray(client):
     import numpy as np
     from mcap.reader import make_reader
 
-    from coordinator.reality import SimulatedReality
+    from coordinator.loop.reality import SimulatedReality
 
     from .conftest import drive_episode
 
@@ -109,7 +109,7 @@ def test_a_domains_versioned_id_is_taken_over_http(client):
     container at version 1; over HTTP it got 422. It is read back as the name."""
     import numpy as np
 
-    from coordinator.reality import SimulatedReality
+    from coordinator.loop.reality import SimulatedReality
 
     robot = SimulatedReality("container", {"n_blocks": 3}, {"block_sizes": np.full(3, 0.045)})
     try:
@@ -150,7 +150,7 @@ def test_a_corrupt_row_fails_alone(tmp_path):
 
     import numpy as np
 
-    from coordinator.reality import SimulatedReality
+    from coordinator.loop.reality import SimulatedReality
 
     from .conftest import drive_episode
 

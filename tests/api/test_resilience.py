@@ -18,7 +18,7 @@ import httpx
 import numpy as np
 import pytest
 
-from coordinator.reality import SimulatedReality
+from coordinator.loop.reality import SimulatedReality
 
 from .conftest import Server, act_and_observe, free_port, observation_body, stream_events, tmoc, wait_for
 

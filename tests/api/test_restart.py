@@ -11,7 +11,7 @@ import sqlite3
 import numpy as np
 import pytest
 
-from coordinator.reality import SimulatedReality
+from coordinator.loop.reality import SimulatedReality
 
 from .conftest import Server, stream_events, wait_for
 

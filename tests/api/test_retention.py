@@ -15,7 +15,7 @@ from fastapi.testclient import TestClient
 from api.app import create_app
 from api.settings import Settings
 from api.store import Store
-from coordinator.reality import SimulatedReality
+from coordinator.loop.reality import SimulatedReality
 
 from .conftest import drive_episode
 

@@ -11,7 +11,7 @@ import pytest
 from mcap.reader import make_reader
 
 from coordinator.cli import main
-from coordinator.reality import SimulatedReality
+from coordinator.loop.reality import SimulatedReality
 
 from .conftest import TOKEN, drive_episode, observation_body, stream_events
 

@@ -18,7 +18,7 @@ import httpx
 import numpy as np
 import pytest
 
-from coordinator.reality import SimulatedReality
+from coordinator.loop.reality import SimulatedReality
 
 from .conftest import Server, drive_episode, stream_events
 

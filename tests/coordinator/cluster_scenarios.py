@@ -93,9 +93,9 @@ def main() -> int:
     import ray
     from ray.cluster_utils import Cluster
 
-    import coordinator.runner as runner
-    import coordinator.shard_pools as shard_pools
-    from coordinator.fanout import ShardPool
+    import coordinator.loop.runner as runner
+    import coordinator.distributed.shard_pools as shard_pools
+    from coordinator.distributed.fanout import ShardPool
     from coordinator.run_config import RunConfig
 
     cfg = RunConfig(**SPEC)
@@ -142,7 +142,7 @@ def main() -> int:
             return real_wait(*args, **kwargs)
 
         ray.wait = wait
-        # The runner's own pool is built by coordinator.shard_pools.ShardPools.
+        # The runner's own pool is built by coordinator.distributed.shard_pools.ShardPools.
         shard_pools.ShardPool = NodeLossPool
         t = time.perf_counter()
         try:

@@ -11,9 +11,9 @@ from pydantic import ValidationError
 
 from coordinator.agents import AGENTS, AgentSpec, agent
 from coordinator.cli import main
-from coordinator.fanout import ShardPool
+from coordinator.distributed.fanout import ShardPool
 from coordinator.run_config import RunConfig
-from coordinator.runner import run
+from coordinator.loop.runner import run
 
 NAMES = list(AGENTS)
 # What every episode record carries (result.json's "episodes", the service's /episodes).
@@ -103,7 +103,7 @@ def test_tmp_rl_learns_its_grounding_by_trial_and_error():
     generator's."""
     import numpy as np
 
-    from coordinator.grounding_bandit import ARMS, GroundingBandit
+    from coordinator.baselines.grounding_bandit import ARMS, GroundingBandit
 
     def learn(seed: int) -> tuple[list[int], GroundingBandit]:
         rng = np.random.default_rng(seed)

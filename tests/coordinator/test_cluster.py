@@ -16,7 +16,7 @@ from pathlib import Path
 
 import pytest
 
-from coordinator.fanout import plan_shards
+from coordinator.distributed.fanout import plan_shards
 
 HERE = Path(__file__).resolve().parent
 REPO = HERE.parents[1]

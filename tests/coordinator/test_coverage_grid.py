@@ -12,7 +12,7 @@ from coordinator.domains import load
 from coordinator.experiments.sweep import COVERAGE_Z
 from coordinator.experiments.tails import true_row
 from coordinator.run_config import RunConfig
-from coordinator.runner import run
+from coordinator.loop.runner import run
 
 # (domain, true size in m, truth by name beyond the size, domain options): the prior's two
 # ends and its middle for the container; stack-and-push with the density unknown at both

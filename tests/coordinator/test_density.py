@@ -13,10 +13,10 @@ import pytest
 from pydantic import ValidationError
 
 from coordinator.cli import main
-from coordinator.fanout import ShardPool
+from coordinator.distributed.fanout import ShardPool
 from coordinator.run_config import RunConfig
-from coordinator.runner import run
-from coordinator.session import Session
+from coordinator.loop.runner import run
+from coordinator.loop.session import Session
 
 HEAVY = {"size": 0.040, "density": 2400.0}
 UNKNOWN = {"unknown_density": True}
@@ -64,7 +64,7 @@ def test_truth_and_options_reach_the_session_and_reality():
     weight = [c["index"] for c in s.domain.measurement_channels() if c["name"] == "held_weight"][0]
     assert sigma[list(idx).index(weight)] == 3.5
     assert list(s.truth_row()) == [0.040, 2400.0]
-    from coordinator.runner import reality_for
+    from coordinator.loop.runner import reality_for
 
     truth = s.domain.properties(reality_for(cfg, s).truth)
     assert truth["density"] == 2400.0 and np.allclose(truth["block_masses"], 2400.0 * 0.04 ** 3)

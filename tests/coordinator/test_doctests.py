@@ -13,7 +13,7 @@ import pytest
 
 MODULES = ("coordinator.particle_filter.belief", "coordinator.particle_filter.likelihood",
            "coordinator.particle_filter.rejuvenation",
-           "coordinator.transition_model", "coordinator.fanout")
+           "coordinator.transition.transition_model", "coordinator.distributed.fanout")
 
 
 @pytest.mark.parametrize("name", MODULES)

@@ -11,7 +11,7 @@ from coordinator import domains
 from coordinator.cli import main
 from coordinator.conformance import CHECKS, check_domain
 from sim_workers.base import PhysicsDomain
-from coordinator.transition_model import TransitionModel
+from coordinator.transition.transition_model import TransitionModel
 from planner.domain import UnknownAction
 from sim_workers import domains as physics_registry
 from sim_workers.container import ContainerDomain
@@ -243,7 +243,7 @@ def test_a_checkpoint_carries_the_domain_version_and_a_changed_domain_refuses_it
     with another version than the installed domain's is refused by name, not resumed with
     a scene or contexts it was not learned in."""
     from coordinator.run_config import RunConfig
-    from coordinator.session import Session
+    from coordinator.loop.session import Session
 
     s = Session(RunConfig(particles=8, seed=2, particle_budget="fixed"))
     data = json.loads(json.dumps(s.to_checkpoint()))
@@ -310,7 +310,7 @@ def test_the_domain_guide_names_every_member_of_the_protocol():
 def test_the_simulated_reality_jitters_every_movable_object(name):
     """Issue 26: the reality placed every row but 0 with jitter ("row 0 is the container"),
     so stack-and-push's b1 never moved. Now the domain says which rows it keeps still."""
-    from coordinator.reality import SimulatedReality
+    from coordinator.loop.reality import SimulatedReality
 
     d = domains.load(name, n_blocks=3)
     truth = d.physics.true_properties()
@@ -412,8 +412,8 @@ def test_the_reality_holds_the_truth_exactly_by_one_path(domain, truth, variatio
     """Issue 39: a size-only L scaled the domain's default sizes by true_size / default
     (0.046 m came out one ulp off); the truth is L's row, built like a particle's."""
     from coordinator.run_config import RunConfig
-    from coordinator.runner import reality_for
-    from coordinator.session import Session
+    from coordinator.loop.runner import reality_for
+    from coordinator.loop.session import Session
 
     session = Session(RunConfig(domain=domain, true_size=truth, sizes_variation=variation, particles=2,
                                 particle_budget="fixed", n_blocks=3))

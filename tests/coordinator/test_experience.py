@@ -6,7 +6,7 @@ import json
 import numpy as np
 import pytest
 
-from coordinator.experience import ExperiencePool, Transition
+from coordinator.transition.experience import ExperiencePool, Transition
 from planner.container import TASK
 
 S = frozenset({"is_in(b1,init)", "hand_empty(r)", "is_in(c,init)"})

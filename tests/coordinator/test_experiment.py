@@ -229,8 +229,8 @@ def test_resume_continues_a_partial_run_from_its_checkpoint(ray_cluster, tmp_pat
     run = json.loads((full / "runs" / "milestones-tmoc" / "0.json").read_text())
     # Rebuild the checkpoint after episode 1 by running 1 episode with the same config.
     from coordinator.run_config import RunConfig
-    from coordinator.runner import run as run_task
-    from coordinator.fanout import ShardPool
+    from coordinator.loop.runner import run as run_task
+    from coordinator.distributed.fanout import ShardPool
 
     config = RunConfig(**run["config"])
     checkpoints = []

@@ -18,11 +18,11 @@ import pytest
 
 from coordinator.particle_filter.belief import Belief
 from coordinator.particle_filter.model_error import ModelError
-from coordinator.real_pose import choose_pose, pose_candidates
+from coordinator.loop.real_pose import choose_pose, pose_candidates
 from coordinator.particle_filter.rejuvenation import regularise
 from coordinator.particle_filter.resample_move import RealStep, mh_move
 from coordinator.run_config import PRE_ISSUE_37_FILTER, RunConfig
-from coordinator.session import Session
+from coordinator.loop.session import Session
 
 N = 16
 SIGMA = 0.002       # the container's finger opening, m
@@ -231,7 +231,7 @@ def test_the_seed_91_grasp_loop_is_gone():
     """Issue 37's reproduction: 44 mm, seed 91, 16 particles, exact readings. Issue 24's
     filter fails pickup(r,b1,init) again and again (24 times in the full run), its belief
     flipping between two grasp modes; issue 37's grasps within a few tries."""
-    from coordinator.runner import run
+    from coordinator.loop.runner import run
 
     runs = {}
     for name, kw in (("new", {}), ("old", PRE_ISSUE_37_FILTER)):

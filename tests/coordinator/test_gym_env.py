@@ -9,8 +9,8 @@ import pytest
 from gymnasium.utils.env_checker import check_env
 
 from coordinator.domains import load, names, spec
-from coordinator.gym_baselines import tabular_q
-from coordinator.gym_env import TmocEnv, env_id, register_all
+from coordinator.baselines.gym_baselines import tabular_q
+from coordinator.integrations.gym_env import TmocEnv, env_id, register_all
 
 pytestmark = pytest.mark.filterwarnings("ignore::UserWarning")   # the checker's advice on Box bounds
 
@@ -18,14 +18,14 @@ pytestmark = pytest.mark.filterwarnings("ignore::UserWarning")   # the checker's
 def test_every_domain_is_registered_under_its_versioned_id():
     ids = register_all()
     assert ids == [f"tmoc/{n}-v{spec(n).version}" for n in names()]
-    env = gym.make("coordinator.gym_env:tmoc/container-v1", n_blocks=2)
+    env = gym.make("coordinator.integrations.gym_env:tmoc/container-v1", n_blocks=2)
     assert env.unwrapped.domain_name == "container" and len(env.unwrapped.actions) == 2 * 2 + 2 + 2
     env.close()
 
 
 @pytest.mark.parametrize("name", names())
 def test_gymnasium_check_env_passes_for_every_domain(name):
-    env = gym.make(f"coordinator.gym_env:{env_id(name)}", n_blocks=2, max_steps=8)
+    env = gym.make(f"coordinator.integrations.gym_env:{env_id(name)}", n_blocks=2, max_steps=8)
     check_env(env.unwrapped, skip_render_check=True)
     env.close()
 

@@ -107,3 +107,38 @@ def test_the_planner_package_loads_no_domain():
     task half (and clingo): the "no domain in the core" rule could not see it."""
     graph = import_graph(REPO)
     assert not any(t.startswith(("planner.container", "planner.stack_and_push")) for t in graph["planner"])
+
+
+OLD_PATHS = {"session": "loop", "episode": "loop", "runner": "loop", "real_pose": "loop", "transit": "loop",
+             "reality": "loop", "step_record": "loop", "observations": "loop", "transition_model": "transition",
+             "experience": "transition", "fanout": "distributed", "shard_pools": "distributed",
+             "reaper": "distributed", "gym_env": "integrations", "tracker": "integrations",
+             "export": "integrations", "frames": "integrations", "grounding_bandit": "baselines",
+             "gym_baselines": "baselines"}
+
+
+def test_coordinator_is_grouped_by_concept_and_the_old_names_still_work():
+    """Issue 39: coordinator/ was 31 flat files. Each moved module is still importable by
+    its old name as the very same module (pickles, checkpoints, `gymnasium.make` ids and
+    scripts name them), and every folder says what it is."""
+    import importlib
+
+    from coordinator import MOVED
+
+    assert MOVED == OLD_PATHS
+    for old, package in OLD_PATHS.items():
+        moved = importlib.import_module(f"coordinator.{package}.{old}")
+        assert importlib.import_module(f"coordinator.{old}") is moved, old
+        assert importlib.import_module(f"coordinator.{package}").__doc__
+    flat = [p.stem for p in (REPO / "coordinator").glob("*.py") if p.stem != "__init__"]
+    assert len(flat) <= 8 and not set(flat) & set(OLD_PATHS), flat      # no file per old name
+
+
+def test_the_reaper_still_runs_by_its_old_module_name():
+    """`python -m coordinator.reaper` (an old name) runs the moved module as __main__."""
+    import subprocess
+
+    proc = subprocess.run([sys.executable, "-c", "import runpy, sys; sys.argv = ['x', '0']; "
+                           "runpy.run_module('coordinator.reaper', run_name='__main__')"],
+                          input=b"clean", capture_output=True, timeout=60)
+    assert proc.returncode == 0, proc.stderr[-2000:]

@@ -73,7 +73,7 @@ def tree_copy(tmp_path_factory) -> Path:
 
 @pytest.mark.parametrize("module, added, message", [
     ("planner/container/symbolic.py", "import coordinator", "planner is not allowed to import coordinator"),
-    ("coordinator/session.py", "import api", "coordinator is not allowed to import api"),
+    ("coordinator/loop/session.py", "import api", "coordinator is not allowed to import api"),
     ("sim_workers/probe.py", "from planner import symbolic", "sim_workers is not allowed to import planner"),
     ("planner/container/__init__.py", "import sim_workers.domains", "planner is not allowed to import sim_workers"),
 ])
@@ -96,7 +96,7 @@ def test_an_arrow_the_wrong_way_breaks_the_contract(tree_copy, tmp_path, module,
      "a domain imports no other domain"),
     ("planner/stack_and_push/__init__.py", "from planner.container import model",
      "a domain imports no other domain"),
-    ("coordinator/session.py", "from planner.container import TASK", "the service imports no domain"),
+    ("coordinator/loop/session.py", "from planner.container import TASK", "the service imports no domain"),
     ("sim_workers/probe.py", "from sim_workers.container import probes", "the service imports no domain"),
     ("api/task_worker.py", "from sim_workers.engines import installed", "api imports neither sim_workers nor planner"),
 ])

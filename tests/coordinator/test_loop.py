@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from coordinator.run_config import RunConfig
-from coordinator.runner import run
+from coordinator.loop.runner import run
 
 # Timeout: tmoc against gp (eight episodes) took 72 s on 2 loaded cores.
 pytestmark = [pytest.mark.usefixtures("ray_cluster"), pytest.mark.slow, pytest.mark.timeout(300)]

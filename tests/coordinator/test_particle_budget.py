@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 
 from coordinator.particle_filter.belief import Belief
-from coordinator.fanout import ShardPool
+from coordinator.distributed.fanout import ShardPool
 from coordinator.particle_filter.particle_budget import kld_count, next_count, occupied_bins
 from coordinator.run_config import RunConfig
-from coordinator.runner import run
+from coordinator.loop.runner import run
 
 
 def test_kld_bound_matches_the_localisation_figures():
@@ -106,7 +106,7 @@ def test_stored_settings_from_before_the_budget_keep_the_fixed_budget():
     """The default is kld, but a stored dump without `particle_budget` (a checkpoint or a
     task spec written before the field existed) ran fixed and resumes fixed."""
     from coordinator.run_config import RunConfig, stored_run_config
-    from coordinator.session import Session
+    from coordinator.loop.session import Session
 
     assert RunConfig().particle_budget == "kld"
     old = RunConfig(particles=6, episodes=1).model_dump()

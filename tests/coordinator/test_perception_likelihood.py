@@ -16,11 +16,11 @@ import math
 import numpy as np
 import pytest
 
-from coordinator.fanout import ShardPool
+from coordinator.distributed.fanout import ShardPool
 from coordinator.particle_filter.perception import gauss_hermite, mixture_log_likelihood
 from coordinator.particle_filter.resample_move import RealStep
 from coordinator.run_config import RunConfig
-from coordinator.session import Session
+from coordinator.loop.session import Session
 
 ACTION = "pickup(r,b1,init)"
 SIZES = np.array([0.034, 0.036, 0.038, 0.055, 0.057, 0.0579, 0.0585])   # one row per world

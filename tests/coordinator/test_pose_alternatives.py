@@ -7,8 +7,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from coordinator.fanout import ShardPool
-from coordinator.real_pose import choose_pose
+from coordinator.distributed.fanout import ShardPool
+from coordinator.loop.real_pose import choose_pose
 from coordinator.run_config import PRE_ISSUE_37_FILTER, RunConfig, stored_run_config
 from sim_workers.blocks.hand import quarter_turn
 from sim_workers.configuration import Configuration

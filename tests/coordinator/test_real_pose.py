@@ -5,9 +5,9 @@ import numpy as np
 import pytest
 
 from coordinator.particle_filter.belief import Belief
-from coordinator.reality import Observation
+from coordinator.loop.reality import Observation
 from coordinator.run_config import RunConfig
-from coordinator.session import Session
+from coordinator.loop.session import Session
 from sim_workers.configuration import Configuration
 
 # Two hypotheses under 48.5 mm (two columns) and two above (one column), close enough in L

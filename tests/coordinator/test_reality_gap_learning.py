@@ -6,9 +6,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from coordinator.reality import ContextFailure
+from coordinator.loop.reality import ContextFailure
 from coordinator.run_config import RunConfig
-from coordinator.runner import run
+from coordinator.loop.runner import run
 
 @pytest.mark.usefixtures("ray_cluster")
 @pytest.mark.slow

@@ -13,9 +13,9 @@ import pytest
 from sim_workers.engines import ENGINES
 from pydantic import ValidationError
 
-from coordinator.reality import SimulatedReality
+from coordinator.loop.reality import SimulatedReality
 from coordinator.run_config import PRE_SENSOR_NOISE, RunConfig, stored_run_config
-from coordinator.runner import reality_stream, sensor_noise
+from coordinator.loop.runner import reality_stream, sensor_noise
 from sim_workers.domains import load
 from sim_workers.engines import installed
 from sim_workers.reality_gap import SensorNoise, noisy_readings, perceived_planar
@@ -303,7 +303,7 @@ def test_a_robot_session_has_no_sensor_fields_a_task_has():
 
 def test_the_gym_env_s_reality_is_noisy_by_default():
     pytest.importorskip("gymnasium")
-    from coordinator.gym_env import TmocEnv
+    from coordinator.integrations.gym_env import TmocEnv
 
     noisy, exact = TmocEnv(n_blocks=2), TmocEnv(n_blocks=2, sensor_noise=0, perception_sigma=0)
     try:

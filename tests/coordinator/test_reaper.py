@@ -9,7 +9,7 @@ import time
 
 import pytest
 
-from coordinator.reaper import CLEAN, alive, descendants
+from coordinator.distributed.reaper import CLEAN, alive, descendants
 
 pytestmark = [pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc"),
               pytest.mark.slow]          # process trees of their own
@@ -21,7 +21,7 @@ SERVER = ("import subprocess, sys, time; subprocess.Popen([sys.executable, '-c',
 
 def _server_and_reaper():
     server = subprocess.Popen([sys.executable, "-c", SERVER])
-    reaper = subprocess.Popen([sys.executable, "-m", "coordinator.reaper", str(server.pid)],
+    reaper = subprocess.Popen([sys.executable, "-m", "coordinator.distributed.reaper", str(server.pid)],
                               stdin=subprocess.PIPE)
     t0 = time.monotonic()
     while not descendants(server.pid) and time.monotonic() - t0 < 10:

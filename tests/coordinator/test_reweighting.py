@@ -12,7 +12,7 @@ from pydantic import ValidationError
 
 from coordinator.particle_filter.belief import gaussian_log_likelihood
 from coordinator.run_config import PRE_ISSUE_24_FILTER, RunConfig, stored_run_config
-from coordinator.session import Session
+from coordinator.loop.session import Session
 
 N = 16
 

@@ -161,7 +161,7 @@ def test_sweep_writes_its_files(ray_cluster, tmp_path):
 
 # ----------------------------------------------------------------------------- tails (issue 37)
 def _steps(*episodes):
-    """Step records (as coordinator.step_record writes them: only what run_tails reads)
+    """Step records (as coordinator.loop.step_record writes them: only what run_tails reads)
     from per-episode lists of (action, success)."""
     out = []
     for e, steps in enumerate(episodes):

@@ -5,10 +5,10 @@ import numpy as np
 import pybullet as pb
 import pytest
 
-from coordinator.reality import Observation
+from coordinator.loop.reality import Observation
 from coordinator.run_config import RunConfig
-from coordinator.session import Session
-from coordinator.transit import plan_pre_pose_transit, transit_checker
+from coordinator.loop.session import Session
+from coordinator.loop.transit import plan_pre_pose_transit, transit_checker
 from planner.motion import box_checker, interpolate_config
 from sim_workers.configuration import Configuration, quat_from_yaw
 from sim_workers.grounded_world import GroundedWorld
@@ -215,8 +215,8 @@ def test_a_fallback_is_replayed_by_the_particle_worlds_from_the_trajectory_start
     """An unchecked transit may touch something, so the particle worlds simulate the whole
     trajectory the robot executed (start time 0), not from the pre-pose, and the note says
     so; an action with a checked transit still starts them at the pre-pose."""
-    import coordinator.session as session_module
-    from coordinator.episode import REPLAYED
+    import coordinator.loop.session as session_module
+    from coordinator.loop.episode import REPLAYED
     from planner.motion import Transit
 
     s = Session(RunConfig(particles=4, episodes=1, seed=0, likelihood=likelihood, particle_budget="fixed"))

@@ -6,8 +6,8 @@ import json
 import numpy as np
 import pytest
 
-from coordinator.experience import ExperiencePool
-from coordinator.transition_model import TransitionModel
+from coordinator.transition.experience import ExperiencePool
+from coordinator.transition.transition_model import TransitionModel
 from planner.container import TASK, context_of
 
 ON = {"context_fn": TASK.context_of}

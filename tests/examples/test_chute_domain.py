@@ -106,7 +106,7 @@ def test_a_dumped_config_reads_back_with_the_domains_utility(chute_registered):
     """A stored run, checkpoint or task is a dumped RunConfig: read back, it must keep the
     chute's terms (fail 30, deliver 20), not the block worlds' defaults (50, 40)."""
     from coordinator.domains import task_half
-    from coordinator.episode import utility_terms
+    from coordinator.loop.episode import utility_terms
     from coordinator.run_config import RunConfig
 
     task = task_half("chute")

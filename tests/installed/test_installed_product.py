@@ -187,7 +187,7 @@ def test_every_module_imports_from_the_installed_copy(venv):
     extras = set(tomllib.loads((REPO / "pyproject.toml").read_text())["project"]["optional-dependencies"])
     named = {m: re.search(r"^ImportError: .*pip install 'tmoc-service\[(\w+)\]'", why) for m, why in bad.items()}
     assert {m: why for m, why in bad.items() if not (named[m] and named[m][1] in extras)} == {}
-    assert set(bad) <= {"coordinator.gym_env", "coordinator.gym_baselines"}
+    assert set(bad) <= {"coordinator.integrations.gym_env", "coordinator.baselines.gym_baselines"}
     assert len(modules) > 30 and "coordinator.commands.run" in modules
 
 

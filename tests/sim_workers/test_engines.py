@@ -36,7 +36,7 @@ def test_the_session_s_physics_half_learns_the_run_s_engine(engine):
     the run's engine although the docs say runs set it, so a domain whose Y depends on the
     engine silently planned for the default one under --engine mujoco."""
     from coordinator.run_config import RunConfig
-    from coordinator.session import Session
+    from coordinator.loop.session import Session
 
     session = Session(RunConfig(engine=engine, particles=2, episodes=1, n_blocks=2))
     assert session.domain.engine == engine

@@ -27,7 +27,7 @@ import json
 from pathlib import Path
 from typing import BinaryIO, Iterable
 
-from .step_record import STEPS_FILE
+from ..loop.step_record import STEPS_FILE
 
 PROFILE = "tmoc"
 STEP_TOPIC, TRAJECTORY_TOPIC, EPISODE_TOPIC = "/tmoc/step", "/tmoc/trajectory", "/tmoc/episode"
@@ -67,7 +67,7 @@ def _ns(seconds: float) -> int:
 
 
 def write_mcap(out: BinaryIO, steps: Iterable[dict], episodes: Iterable[dict], meta: dict) -> dict:
-    """Write `steps` (``coordinator.step_record`` dicts) and `episodes` (episode records)
+    """Write `steps` (``coordinator.loop.step_record`` dicts) and `episodes` (episode records)
     to `out` as MCAP; `meta` (source, domain, config) as its ``tmoc`` metadata. Returns
     the message counts per topic."""
     from mcap.writer import Writer

@@ -1,6 +1,6 @@
 """The process's Ray driver and its shard pools, one per scene (:class:`ShardPools`).
 
-A :class:`~coordinator.fanout.ShardPool` serves one scene (domain, block count, domain
+A :class:`~coordinator.distributed.fanout.ShardPool` serves one scene (domain, block count, domain
 options). A process that runs many tasks (the HTTP service) keeps the pools of the scenes
 in use and shares them: ``acquire`` builds a scene's pool on first need (evicting the
 least recently used idle one past ``max_pools``) and ``release`` hands it back; ``lease``
@@ -39,7 +39,7 @@ class ShardPools:
 
     With ``own_ray_thread`` (a server) Ray is started on a thread that lives until
     ``close()``, which shuts Ray down; without it (a command, a Ray task) Ray is joined from
-    the calling thread as ``coordinator.fanout.init_ray`` does and ``close()`` leaves it up.
+    the calling thread as ``coordinator.distributed.fanout.init_ray`` does and ``close()`` leaves it up.
     Each shard actor reserves ``1 / max_pools`` CPU, so ``max_pools`` scenes fit at once;
     with ``n_shards=0`` a pool simulates in-process (Ray still names the node it ran on).
     """

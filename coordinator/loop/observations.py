@@ -1,4 +1,4 @@
-"""A robot's observation (as JSON) read into an :class:`~coordinator.reality.Observation`
+"""A robot's observation (as JSON) read into an :class:`~coordinator.loop.reality.Observation`
 of a scene, checked against that scene's domain.
 
 The HTTP service calls these for an external robot; a message names the field that does
@@ -10,7 +10,7 @@ import numpy as np
 
 from sim_workers.configuration import Configuration
 
-from .domains import measurement_channels
+from ..domains import measurement_channels
 from .reality import Observation
 
 class ObservationError(ValueError):

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from .run_config import RunConfig
+from ..run_config import RunConfig
 
 
 # Appended to a transit fallback's note once the particle worlds replayed its action from

@@ -7,7 +7,7 @@ the server lives, notes the server's descendants every second; when its pipe fro
 server closes without the word ``clean`` (the server died), it kills the ones it noted that
 still run (each checked by its start time, so a reused pid is never hit).
 
-    python -m coordinator.reaper PID        # stdin: the pipe from the server
+    python -m coordinator.distributed.reaper PID        # stdin: the pipe from the server
 """
 from __future__ import annotations
 
@@ -87,7 +87,7 @@ def start_reaper() -> subprocess.Popen | None:
     :func:`clean` at a clean exit."""
     if not sys.platform.startswith("linux") or not Path("/proc/self/stat").exists():
         return None
-    return subprocess.Popen([sys.executable, "-m", "coordinator.reaper", str(os.getpid())],
+    return subprocess.Popen([sys.executable, "-m", "coordinator.distributed.reaper", str(os.getpid())],
                             stdin=subprocess.PIPE, stdout=subprocess.DEVNULL, close_fds=True)
 
 

@@ -11,11 +11,11 @@ import numpy as np
 from sim_workers.engines import check_engine
 from sim_workers.reality_gap import SensorNoise
 
-from .fanout import ShardPool
+from ..distributed.fanout import ShardPool
 from .reality import ContextFailure, SimulatedReality
-from .run_config import REALITY_STREAM, RunConfig, seed_stream
+from ..run_config import REALITY_STREAM, RunConfig, seed_stream
 from .session import EpisodeInterrupted, Session
-from .shard_pools import ShardPools
+from ..distributed.shard_pools import ShardPools
 
 
 def reality_for(config: RunConfig, session: Session) -> SimulatedReality:
@@ -115,7 +115,7 @@ def run(config: RunConfig, *, ray_address: str | None = None,
     `kill_shard_at` (tests only): kill shard 0 right before that episode, to check that Ray
     restarts it and the run ends with identical results.
 
-    `frames` (a ``coordinator.frames.FrameSink``): scene pictures of the run go there (the
+    `frames` (a ``coordinator.integrations.frames.FrameSink``): scene pictures of the run go there (the
     end of every episode, every failed action); they change nothing in the results.
 
     ``runtime.nodes`` of the result lists the Ray nodes that ran particles (node_id,
@@ -135,7 +135,7 @@ def run(config: RunConfig, *, ray_address: str | None = None,
         pool = None
     reality = reality_for(config, session)
     if frames is not None:
-        from .frames import FrameRecorder
+        from ..integrations.frames import FrameRecorder
 
         session.frames = FrameRecorder(config.domain, domain_options(config), reality.truth, frames)
     # Reality's draws come from their own stream: the agent's decisions never shift them.

@@ -5,7 +5,7 @@ as an environment, for the tools that consume Gymnasium (RLlib, Stable Baselines
 Importing this module registers one id per domain of the registry, ``tmoc/NAME-vN`` (N the
 domain's version: the ids move with the versioned registry), so that::
 
-    env = gymnasium.make("coordinator.gym_env:tmoc/container-v1", n_blocks=4)
+    env = gymnasium.make("coordinator.integrations.gym_env:tmoc/container-v1", n_blocks=4)
 
 - **The world** is the domain's ``SimulatedReality`` holding a hidden truth, a row of L:
   the one given (``truth=``), else drawn from L's uniform prior at every reset, from the
@@ -44,9 +44,9 @@ from sim_workers.configuration import Configuration
 
 from sim_workers.reality_gap import SensorNoise
 
-from .domains import load, names, spec
-from .reality import SimulatedReality
-from .transit import plan_pre_pose_transit
+from ..domains import load, names, spec
+from ..loop.reality import SimulatedReality
+from ..loop.transit import plan_pre_pose_transit
 
 NAMESPACE = "tmoc"
 DEFAULT_MAX_STEPS = 60          # RunConfig's max_steps

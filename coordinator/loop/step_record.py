@@ -4,7 +4,7 @@ and after, the measurements, the outcome and the belief's summary after the upda
 
 ``Session.observe`` makes one per real step; ``tmoc run`` streams them to
 ``OUT/steps.jsonl``, the service keeps them per task and session, and
-``coordinator.export`` writes them as MCAP. Plain JSON-able values (NaN, a channel that
+``coordinator.integrations.export`` writes them as MCAP. Plain JSON-able values (NaN, a channel that
 did not measure, as null), so that a record survives any store unchanged.
 """
 from __future__ import annotations

@@ -5,8 +5,8 @@
 particle worlds replay the action (one Ray call per shard), the belief is reweighted and
 resampled, the experience pool and T are updated, and the plan is kept or replanned. A
 driver (``run_episode`` with a SimulatedReality, or the HTTP service for a real robot)
-calls the two in turn. Episode accounting lives in ``coordinator.episode``, the transit
-to the pre-pose in ``coordinator.transit``, what an observation does to the belief in
+calls the two in turn. Episode accounting lives in ``coordinator.loop.episode``, the transit
+to the pre-pose in ``coordinator.loop.transit``, what an observation does to the belief in
 ``coordinator.particle_filter`` (one ``update`` per real step); the rest is the loop's steps,
 which share the session's state.
 """
@@ -24,20 +24,20 @@ from sim_workers.configuration import Configuration
 from sim_workers.properties import SIZES_VARIATION_SCALE
 from sim_workers.trajectory import columns_of
 
-from .agents import agent_spec
-from .domains import load as load_domain, property_space, spec as domain_spec
+from ..agents import agent_spec
+from ..domains import load as load_domain, property_space, spec as domain_spec
 from .episode import EpisodeStats, utility_terms
-from .experience import ExperiencePool
-from .grounding_bandit import GroundingBandit
-from .particle_filter import Belief, ParticleFilter, RealStep, Reweighting
-from .particle_filter.belief import heaviest_class, mode_mask, symbolic_log_likelihood
-from .particle_filter.perception import gauss_hermite
+from ..transition.experience import ExperiencePool
+from ..baselines.grounding_bandit import GroundingBandit
+from ..particle_filter import Belief, ParticleFilter, RealStep, Reweighting
+from ..particle_filter.belief import heaviest_class, mode_mask, symbolic_log_likelihood
+from ..particle_filter.perception import gauss_hermite
 from .reality import Observation
 from .real_pose import choose_pose, pose_candidates
-from .run_config import AGENT_STREAM, RunConfig, seed_stream, stored_run_config
+from ..run_config import AGENT_STREAM, RunConfig, seed_stream, stored_run_config
 from .step_record import step_record
 from .transit import plan_pre_pose_transit
-from .transition_model import TransitionModel
+from ..transition.transition_model import TransitionModel
 
 # A property whose posterior std is still over this share of its prior's (a uniform prior:
 # width / sqrt(12)) is reported `identified: false`: the data have not yet cut its plausible
@@ -76,7 +76,7 @@ class Session:
         self.task = joined.task               # symbolic model, T's contexts, utility, planner
         self.n_blocks = config.n_blocks
         self.costs = utility_terms(self.task, config)
-        self.shard_pool = shard_pool      # particle simulations (coordinator.fanout.ShardPool)
+        self.shard_pool = shard_pool      # particle simulations (coordinator.distributed.fanout.ShardPool)
         self.rng = seed_stream(config.seed, AGENT_STREAM)
         # L: named properties, one value each for every block, or one per block with
         # the "sizes" variation; a row is property-major (sizes, then densities, ...).
@@ -104,11 +104,11 @@ class Session:
         self.pending: PendingStep | None = None
         self.stats = EpisodeStats()
         self._t0 = 0.0
-        # Pictures (coordinator.frames.FrameRecorder): a view of the run, never part of its
+        # Pictures (coordinator.integrations.frames.FrameRecorder): a view of the run, never part of its
         # state; not checkpointed (the recorder holds a pybullet client of this process).
         self.frames = None
         self._prediction = None
-        # The current episode's steps as records (coordinator.step_record: what an export
+        # The current episode's steps as records (coordinator.loop.step_record: what an export
         # needs); not checkpointed: a run or session resumes at an episode's start.
         self.step_records: list[dict] = []
         # TMP-RL's grounding by trial and error (its arm for the pending action, if any).
@@ -258,7 +258,7 @@ class Session:
 
     def _most_successful_pose(self, config: Configuration, action: str, view: Belief,
                               cols: np.ndarray, poses: np.ndarray) -> np.ndarray:
-        """The candidate pose (each mode's, and the mean's; ``coordinator.real_pose``) that
+        """The candidate pose (each mode's, and the mean's; ``coordinator.loop.real_pose``) that
         the particle worlds predict succeeds for most of the belief's weight; with
         ``pose_alternatives``, Y's other poses of the action (the domain's) judged too."""
         classes = self.domain.pose_classes(view.particles, config, action)
@@ -318,7 +318,7 @@ class Session:
 
     def _transit(self, config: Configuration, pre: np.ndarray) -> np.ndarray | None:
         """A collision-free path to the pre-pose among the observed obstacles
-        (``coordinator.transit``) with the believed sizes. None: every strategy failed, the
+        (``coordinator.loop.transit``) with the believed sizes. None: every strategy failed, the
         action uses the domain's default transit unchecked, and the episode record counts
         the fallback."""
         t0 = time.perf_counter()
@@ -488,7 +488,7 @@ class Session:
 
     def _predicted(self, step: PendingStep, observed: frozenset[str], res: dict, rows: np.ndarray):
         """The particles' predictions of this action, for its picture (copies; reads only)."""
-        from .frames import Prediction
+        from ..integrations.frames import Prediction
 
         if self.config.match == "state":
             matched = [s == observed for s in res["states"]]

@@ -21,7 +21,7 @@ from typing import Callable
 
 import numpy as np
 
-from .particle_filter.belief import Belief, heaviest_class, mode_mask
+from ..particle_filter.belief import Belief, heaviest_class, mode_mask
 
 __all__ = ["MAX_MODES", "pose_candidates", "choose_pose"]
 

@@ -48,7 +48,7 @@ import numpy as np
 from planner.terms import parse_term   # re-exported: the one parser of ground terms
 
 if TYPE_CHECKING:  # only for the type hint of from_experience; no import cycle at runtime
-    from coordinator.experience import ExperiencePool
+    from coordinator.transition.experience import ExperiencePool
 
 __all__ = ["TransitionModel", "parse_term"]
 
@@ -226,7 +226,7 @@ class TransitionModel:
         only (the TMP-RL baseline). Default 1: the belief's predicted outcome distribution
         counts as much as one real trial.
 
-        >>> from coordinator.experience import ExperiencePool
+        >>> from coordinator.transition.experience import ExperiencePool
         >>> from planner.container import TASK
         >>> full, one = frozenset({"at_container(b1,c)", "at_container(b2,c)"}), frozenset({"at_container(b1,c)"})
         >>> pool = ExperiencePool(TASK.context_of)

@@ -1,4 +1,4 @@
-"""A learner that knows nothing of TMOC, run on the Gymnasium view (``coordinator.gym_env``):
+"""A learner that knows nothing of TMOC, run on the Gymnasium view (``coordinator.integrations.gym_env``):
 tabular Q-learning over symbolic states, every action grounded at one fixed row of L (the
 prior's mean unless told), epsilon-greedy among the actions the mask allows. It is the
 yardstick docs/RESULTS.md sets TMOC against ("A Gymnasium agent on the same truth").

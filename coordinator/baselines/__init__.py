@@ -1,0 +1,1 @@
+"""The baselines' own learning: TMP-RL's grounding bandit and the Gymnasium agents."""

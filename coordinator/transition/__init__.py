@@ -1,0 +1,1 @@
+"""T, the learned transition model, and the experience pool it is rebuilt from."""
