@@ -112,22 +112,15 @@ def _pairs(flag: str, items: list[str] | None) -> dict[str, float]:
     return out
 
 
-_SPELLED: dict[tuple[str, str], str] = {}     # (--truth|--belief, name) -> the flag the user typed
-
-
-def _with_alias(flag: str, values: dict, name: str, alias: str, value: float | None) -> None:
+def _with_alias(flag: str, values: dict, name: str, alias: str, value: float | None,
+                spelled: dict) -> None:
+    """`value` of an alias flag into `values[name]`; `spelled` notes the flag the user typed."""
     if value is None:
         return
     if name in values and values[name] != value:
         raise UsageError(f"{alias}: {value:g} disagrees with {flag} {name}={values[name]:g}")
     values[name] = value
-    _SPELLED[(flag, name)] = alias
-
-
-def _flag(flag: str, name: str) -> str:
-    """How the user wrote a truth or belief: its alias flag (``--believed-density``) or
-    ``--belief NAME``."""
-    return _SPELLED.get((flag, name), f"{flag} {name}")
+    spelled[(flag, name)] = alias
 
 
 def run(args: argparse.Namespace) -> int:
@@ -164,13 +157,19 @@ def run(args: argparse.Namespace) -> int:
                          f"for {args.action}")
     L = world_domain.L
     truth, belief = _pairs("--truth", args.truth), _pairs("--belief", args.belief)
-    _SPELLED.clear()
+    spelled: dict[tuple[str, str], str] = {}     # (--truth|--belief, name) -> the alias typed
+
+    def _flag(flag: str, name: str) -> str:
+        """How the user wrote a truth or belief: its alias (``--believed-density``) or ``--belief NAME``."""
+        return spelled.get((flag, name), f"{flag} {name}")
+
     for flag, values, alias, value, checked in (
             ("--truth", truth, "--true-size", args.true_size, _check_size),
             ("--belief", belief, "--believed-size", args.believed_size, _check_size),
             ("--truth", truth, "--true-density", args.true_density, _check_density),
             ("--belief", belief, "--believed-density", args.believed_density, _check_density)):
-        _with_alias(flag, values, alias.split("-")[-1], alias, None if value is None else checked(alias, value))
+        _with_alias(flag, values, alias.split("-")[-1], alias, None if value is None else checked(alias, value),
+                    spelled)
     for flag, values in (("--truth", truth), ("--belief", belief)):
         if "size" in values:
             _check_size(f"{flag} size", values["size"])

@@ -2,6 +2,8 @@
 (issue 13): what `tmoc domains` lists and `tmoc check-domain` checks."""
 from __future__ import annotations
 
+import contextlib
+
 import json
 
 import numpy as np
@@ -69,6 +71,18 @@ def test_domains_json_describes_each_domain(name, capsys):
     assert d["measurements"]["count"] >= len(d["measurements"]["weighed"]) >= 1
 
 
+@contextlib.contextmanager
+def _registered(monkeypatch, name: str, cls: type, description: str):
+    """Physics half `cls` registered as domain `name` (the container's task half) for a test."""
+    physics_registry.register(name, cls)
+    monkeypatch.setitem(domains.BUILTIN, name, domains.DomainSpec(
+        name, f"{cls.__module__}:{cls.__name__}", "planner.container:ContainerTask", description))
+    try:
+        yield
+    finally:
+        physics_registry._REGISTRY.pop(name, None)
+
+
 class _Drifting(ContainerDomain):
     """A broken physics half: re-grounding moves block 1 off the row (Y^-1 changes)."""
 
@@ -82,18 +96,12 @@ class _Drifting(ContainerDomain):
 
 
 def test_check_domain_names_the_failed_check_and_exits_1(capsys, monkeypatch):
-    physics_registry.register("broken_drift", _Drifting)
-    monkeypatch.setitem(domains.BUILTIN, "broken_drift", domains.DomainSpec(
-        "broken_drift", f"{_Drifting.__module__}:_Drifting", "planner.container:ContainerTask",
-        "a broken domain"))
-    try:
+    with _registered(monkeypatch, "broken_drift", _Drifting, "a broken domain"):
         assert main(["check-domain", "broken_drift", "--no-ray"]) == 1
         out = capsys.readouterr().out
         assert "FAIL place_keeps_state" in out and "failed: place_keeps_state" in out
         assert main(["check-domain", "container", "--no-ray"]) == 0
         assert main(["check-domain", "nope"]) == 2
-    finally:
-        physics_registry._REGISTRY.pop("broken_drift", None)
 
 
 class _Incomplete:
@@ -338,11 +346,7 @@ def test_the_object_count_is_the_domains_own_unless_set(capsys, monkeypatch):
     from coordinator.run_config import RunConfig, stored_run_config
     from pydantic import TypeAdapter, ValidationError
 
-    physics_registry.register("three_blocks", _ThreeBlocks)
-    monkeypatch.setitem(domains.BUILTIN, "three_blocks", domains.DomainSpec(
-        "three_blocks", f"{_ThreeBlocks.__module__}:_ThreeBlocks", "planner.container:ContainerTask",
-        "three blocks by default"))
-    try:
+    with _registered(monkeypatch, "three_blocks", _ThreeBlocks, "three blocks by default"):
         assert RunConfig(domain="three_blocks").n_blocks == 3
         assert RunConfig(domain="three_blocks", n_objects=5).n_blocks == 5
         assert RunConfig().n_blocks == 8                          # the container's own
@@ -367,8 +371,6 @@ def test_the_object_count_is_the_domains_own_unless_set(capsys, monkeypatch):
             spec.validate_python({"n_objects": 0})
         described = domains.describe("three_blocks")
         assert described["n_objects"] == described["n_blocks"] == 3
-    finally:
-        physics_registry._REGISTRY.pop("three_blocks", None)
 
 
 class _Blind(ContainerDomain):
@@ -384,16 +386,11 @@ class _Blind(ContainerDomain):
 
 def test_a_domain_whose_outcomes_ignore_L_fails_conformance_by_name(monkeypatch):
     """Issue 39: such a domain passed every check (11/11); nothing in it can be learned."""
-    physics_registry.register("blind", _Blind)
-    monkeypatch.setitem(domains.BUILTIN, "blind", domains.DomainSpec(
-        "blind", f"{_Blind.__module__}:_Blind", "planner.container:ContainerTask", "ignores L"))
-    try:
+    with _registered(monkeypatch, "blind", _Blind, "ignores L"):
         results = {r.name: r for r in check_domain("blind", ray_actors=False)}
         failed = [n for n, r in results.items() if not r.ok]
         assert failed == ["outcomes_depend_on_L"], {n: results[n].detail for n in failed}
         assert "do not depend on size across the prior" in results["outcomes_depend_on_L"].detail
-    finally:
-        physics_registry._REGISTRY.pop("blind", None)
 
 
 def test_every_property_of_L_is_varied_by_the_checks():
