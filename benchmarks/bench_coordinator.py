@@ -25,6 +25,7 @@ sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 
 from coordinator.particle_filter.belief import Belief, mode_mask  # noqa: E402
 from coordinator.commands.run import parse_options  # noqa: E402
+from coordinator.loop.real_pose import mode_scale  # noqa: E402
 from coordinator.loop.reality import Observation  # noqa: E402
 from coordinator.run_config import RunConfig  # noqa: E402
 from coordinator.loop.session import PendingStep, Session  # noqa: E402
@@ -40,11 +41,11 @@ def one_action(session: Session, start: Observation, action: str, res: dict, loo
         poses = np.array([session.domain.action_pose(session._props(s), config, action)
                           for s in session.belief.particles])
     else:
-        poses = session._particle_poses(config, action)
+        poses = session.domain.action_poses(session.belief.particles, config, action)
     t["y"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     b = session.belief
-    keep = mode_mask(b.particles, b.weights, session.config.mode_bandwidth, scale=session._mode_scale())
+    keep = mode_mask(b.particles, b.weights, session.config.mode_bandwidth, scale=mode_scale(session.low, session.high))
     Belief(b.particles[keep], b.log_weights[keep], b.low, b.high).weighted_mean(poses[keep], angular=(3,))
     t["mode"] = time.perf_counter() - t0
     expected = session.task.apply(start.state, action)

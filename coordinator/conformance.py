@@ -56,7 +56,7 @@ def check_structure(name: str) -> str:
 def check_spec(d: Domain) -> str:
     """The physics half's options are a dataclass holding the object count."""
     assert dataclasses.is_dataclass(d.physics.spec), "physics.spec is not a dataclass of options"
-    assert 1 <= d.n_blocks <= d.physics.max_blocks, f"n_blocks {d.n_blocks} outside [1, {d.physics.max_blocks}]"
+    assert 1 <= d.n_objects <= d.physics.max_objects, f"n_objects {d.n_objects} outside [1, {d.physics.max_objects}]"
     return f"{len(dataclasses.fields(d.physics.spec))} fields"
 
 
@@ -113,8 +113,8 @@ def _each_property(d: Domain, k: int) -> list[tuple[int, str, np.ndarray]]:
 def _first_actions(d: Domain, k: int = 3) -> list[tuple[frozenset, str]]:
     """(state, action) for the first `k` actions of the optimistic plan, states by apply()."""
     task = d.task
-    state = task.initial_state(d.n_blocks)
-    plan = task.plan(state, task.optimistic_transition(d.n_blocks))
+    state = task.initial_state(d.n_objects)
+    plan = task.plan(state, task.optimistic_transition(d.n_objects))
     out = []
     for action in plan.actions[:k]:
         out.append((state, action))
@@ -129,7 +129,7 @@ def check_initial_state(d: Domain) -> str:
         f"{len(config.objects)} object rows for objects {d.physics.object_names}"
     state = d.physics.symbolic_state(config)
     assert d.task.parse_state(sorted(state)) == state, "Y^-1 state is not canonical"
-    assert state == d.task.initial_state(d.n_blocks), \
+    assert state == d.task.initial_state(d.n_objects), \
         f"Y^-1 of the initial configuration {sorted(state)} != task.initial_state"
     assert not d.task.is_goal(state), "the initial state is already a goal"
     return f"{len(state)} atoms"
@@ -253,7 +253,7 @@ def check_determinism(d: Domain, ray_actors: bool = True) -> str:
 def check_planner(d: Domain) -> str:
     """The plan reaches the goal; its expected utility is the Python EU of its actions and
     at least that of any random valid plan; every context is one the domain lists."""
-    task, n = d.task, d.n_blocks
+    task, n = d.task, d.n_objects
     rng = np.random.default_rng(0)
     contexts = set(task.contexts(n))
     state0 = task.initial_state(n)

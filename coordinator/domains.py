@@ -8,7 +8,7 @@ that joins them. Like Gymnasium's registry, entries are strings imported on use:
     >>> sorted(names())[:1]
     ['container']
     >>> d = load("container", n_blocks=4)
-    >>> d.task.contexts(d.n_blocks)[:3]
+    >>> d.task.contexts(d.n_objects)[:3]
     (('pickup', 0), ('stack', 0), ('stack', 1))
 
 Built-in domains are listed in ``BUILTIN``; other installed packages add theirs through
@@ -90,8 +90,14 @@ class Domain:
         return self.spec.name
 
     @property
+    def n_objects(self) -> int:
+        """The scene's object count (the physics half's)."""
+        return int(self.physics.n_objects)
+
+    @property
     def n_blocks(self) -> int:
-        return int(self.physics.spec.n_blocks)
+        """Old name of ``n_objects``."""
+        return self.n_objects
 
 
 _TASKS: dict[str, Any] = {}
@@ -125,7 +131,6 @@ def describe(name: str, **options) -> dict:
     prior), measurement channels, actions, T contexts and utility terms."""
     d = load(name, **options)
     phys, task = d.physics, d.task
-    sp = phys.spec
     L = property_space(phys)
     n_meas = len(phys.measurements(phys.initial_configuration(phys.true_properties())))
     channels = measurement_channels(phys)
@@ -138,15 +143,15 @@ def describe(name: str, **options) -> dict:
         "physics": d.spec.physics,
         "task": d.spec.task,
         "objects": list(phys.object_names),
-        "n_blocks": int(sp.n_blocks),
-        "n_objects": int(sp.n_blocks),      # the domain's default object count (n_blocks: its old name)
+        "n_objects": int(phys.n_objects),   # the domain's default object count
+        "n_blocks": int(phys.n_objects),    # (its old name)
         "properties": [{"name": n, "unit": u, "prior": {"kind": "uniform", "low": float(lo), "high": float(hi)},
                         "default_truth": float(t)}
                        for n, u, lo, hi, t in zip(L.names, L.units, L.low, L.high, L.truth)],
         "measurements": {"count": n_meas, "weighed": [c for c in channels if c["sigma"] is not None],
                          "channels": channels},
         "actions": list(task.action_names),
-        "contexts": [list(c) for c in task.contexts(int(sp.n_blocks))],
+        "contexts": [list(c) for c in task.contexts(int(phys.n_objects))],
         "utility": dict(task.default_costs),
         "probe_actions": list(phys.probe_actions),
         "options": options_of(phys),

@@ -213,7 +213,7 @@ class RunConfig(BaseModel):
         from coordinator.domains import checked_options, options_of
 
         self.options, phys = checked_options(self.domain, dict(self.options), self.n_blocks)
-        self.n_blocks = int(phys.n_blocks)
+        self.n_blocks = int(phys.n_objects)
         L = phys.L
         self._size_in_L = "size" in L.names
         if "size" in self.truth and not self._size_in_L:

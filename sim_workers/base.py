@@ -30,13 +30,17 @@ from .scene import SceneDescription
 # The motion planner's bounds (x, y, z, yaw) when a domain declares none.
 DEFAULT_WORKSPACE = Workspace(np.array([-0.5, -0.6, 0.0, -np.pi]), np.array([1.2, 0.6, 0.6, np.pi]))
 
+# (old, new) names of protocol members renamed by issue 39: the core asks for the new ones.
+_RENAMED = (("block_names", "learned_objects"), ("n_blocks", "n_objects"), ("max_blocks", "max_objects"))
+
 
 class PhysicsDomain(abc.ABC):
     """Scene, Y, Y^-1, measurements and the prior over L of one domain (no planning here)."""
 
     name: ClassVar[str]
     spec: Any                                   # the options: a dataclass, see the module doc
-    max_blocks: ClassVar[int] = 16              # the object count's upper limit
+    max_objects: ClassVar[int] = 16             # the object count's upper limit
+    max_blocks: ClassVar[int] = 16              # (its old name)
     # Action kinds whose particle worlds leave out the bodies they cannot reach
     # (sim_workers/reach.py): only where measured to keep the outcomes.
     leave_out_actions: ClassVar[tuple[str, ...]] = ()
@@ -60,15 +64,37 @@ class PhysicsDomain(abc.ABC):
         """Every movable object's name, in the order of ``Configuration.objects``."""
 
     @property
-    def block_names(self) -> list[str]:
+    def learned_objects(self) -> list[str]:
         """The objects that carry their own row of L with per-object unknowns (default:
         every object)."""
         return list(self.object_names)
 
     @property
-    def n_blocks(self) -> int:
-        """How many objects with unknown properties the scene holds."""
+    def n_objects(self) -> int:
+        """How many objects with unknown properties the scene holds: the spec's count,
+        its ``n_blocks`` field (the constructor option every domain and stored setting
+        carries, so it keeps that name)."""
         return int(self.spec.n_blocks)
+
+    # The protocol's names before issue 39, still answered; a domain written then
+    # overrides them, and the new names follow its overrides (``__init_subclass__``).
+    @property
+    def block_names(self) -> list[str]:
+        """Old name of ``learned_objects``."""
+        return list(self.learned_objects)
+
+    @property
+    def n_blocks(self) -> int:
+        """Old name of ``n_objects``."""
+        return self.n_objects
+
+    def __init_subclass__(cls, **kwargs) -> None:
+        super().__init_subclass__(**kwargs)
+        for old, new in _RENAMED:          # whichever a class sets, the other follows
+            if old in cls.__dict__ and new not in cls.__dict__:
+                setattr(cls, new, cls.__dict__[old])
+            elif new in cls.__dict__ and old not in cls.__dict__:
+                setattr(cls, old, cls.__dict__[new])
 
     @property
     def L(self) -> PropertySpace:
@@ -94,7 +120,7 @@ class PhysicsDomain(abc.ABC):
     def props_from_row(self, row: np.ndarray) -> dict:
         """A row of L (what the wire carries) as the properties a world is built from;
         default: one size for every object."""
-        return {"block_sizes": np.broadcast_to(np.asarray(row, dtype=np.float64), (self.n_blocks,))}
+        return {"block_sizes": np.broadcast_to(np.asarray(row, dtype=np.float64), (self.n_objects,))}
 
     # -- the scene --------------------------------------------------------------------
     @abc.abstractmethod
@@ -271,12 +297,16 @@ class PhysicsDomain(abc.ABC):
     # -- probes (`tmoc probe`, T*) --------------------------------------------------------
     def probe_trial(self, action: str, true_size: float, believed_size: float, load_k: int,
                     rng: np.random.Generator, **kwargs) -> bool:
-        """One seeded trial of `action` in this world: whether it had its intended effect."""
+        """One seeded trial of `action` in this world: whether it had its intended effect.
+
+        A domain may instead declare it by L's names,
+        ``probe_trial(self, action, load_k, rng, *, truth, belief)``: it then gets the truth
+        and Y's belief as dicts with every property of L (``sim_workers.probe.by_name``)."""
         raise NotImplementedError(f"domain {self.name!r} has no probe trials")
 
     def probe_loads(self, action: str) -> range:
-        """The loads a probe of `action` accepts (default 1..n_blocks)."""
-        return range(1, self.n_blocks + 1)
+        """The loads a probe of `action` accepts (default 1..n_objects)."""
+        return range(1, self.n_objects + 1)
 
     def t_star_probe_jobs(self, n_blocks: int) -> list[tuple[str, int]]:
         """(action, load) of every probe the T* estimate needs."""

@@ -7,6 +7,8 @@ action in a grounded world and reads the outcome through Y^-1.
 from __future__ import annotations
 
 import dataclasses
+import inspect
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -44,14 +46,37 @@ def probe_actions(domain_name: str) -> tuple[str, ...]:
 
 
 def probe_keywords(domain_obj) -> set[str]:
-    """The keyword arguments a domain's ``probe_trial`` takes beyond the protocol's five
-    ("*" when it takes any): which beliefs and truths its probe can read."""
-    import inspect
-
+    """The keyword arguments a domain's ``probe_trial`` takes beyond the protocol's
+    positional ones ("*" when it takes any): which beliefs and truths its probe can read."""
     params = inspect.signature(domain_obj.probe_trial).parameters.values()
     if any(p.kind is p.VAR_KEYWORD for p in params):
         return {"*"}
     return {p.name for p in params} - {"action", "true_size", "believed_size", "load_k", "rng"}
+
+
+def by_name(domain_obj) -> bool:
+    """Whether the domain's probe is declared by L's names alone,
+    ``probe_trial(action, load_k, rng, *, truth, belief)`` (issue 39), rather than with the
+    block worlds' ``true_size, believed_size`` positions."""
+    return "true_size" not in inspect.signature(domain_obj.probe_trial).parameters
+
+
+def _named(world_domain, true_size: float, believed_size: float, truth: dict | None,
+           belief: dict | None, extra: dict) -> tuple[dict, dict]:
+    """The truth and the belief in full, by L's names: L's default truth (the world's
+    spec), its size at `true_size` where L has one and it is a number, then `truth`; the
+    belief likewise from the truth, `believed_size`, `believed_<name>` keywords and `belief`."""
+    L = world_domain.L
+    full_truth = dict(zip(L.names, map(float, L.truth)))
+    if "size" in full_truth and not math.isnan(true_size):
+        full_truth["size"] = float(true_size)
+    full_truth.update(truth or {})
+    full_belief = dict(full_truth)
+    if "size" in full_belief and not math.isnan(believed_size):
+        full_belief["size"] = float(believed_size)
+    full_belief.update({k.removeprefix("believed_"): float(v) for k, v in extra.items()})
+    full_belief.update(belief or {})
+    return full_truth, full_belief
 
 
 def run_trial(action: str, true_size: float, believed_size: float, load_k: int,
@@ -64,6 +89,9 @@ def run_trial(action: str, true_size: float, believed_size: float, load_k: int,
     `belief` (every property of L by name) reach a probe that takes them."""
     world_domain = jittered_domain(rng, domain=domain, n_blocks=n_blocks, **(options or {}))
     extra = {**(believed_kw or {}), **({} if believed_density is None else {"believed_density": believed_density})}
+    if by_name(world_domain):
+        full_truth, full_belief = _named(world_domain, true_size, believed_size, truth, belief, extra)
+        return bool(world_domain.probe_trial(action, load_k, rng, truth=full_truth, belief=full_belief))
     takes = probe_keywords(world_domain)
     for name, value in (("truth", truth), ("belief", belief)):
         if value is not None and ({"*", name} & takes):

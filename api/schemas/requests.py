@@ -155,13 +155,13 @@ def _per_domain(name: str, doc: str, fields: dict, with_truth: bool) -> Any:
         opts, truth = _domain_models(d)
         own = {**fields, "options": (opts, Field(default_factory=opts, description=opts.__doc__))}
         phys = load(d).physics
-        top = phys.max_blocks
+        top = phys.max_objects
         if "n_blocks" in own:
             # The domain's own count by default (issue 39); `n_objects` is the neutral name.
-            own["n_blocks"] = (int, Field(min(int(phys.n_blocks), top), ge=1, le=int(top),
+            own["n_blocks"] = (int, Field(min(int(phys.n_objects), top), ge=1, le=int(top),
                                           validation_alias=AliasChoices("n_objects", "n_blocks"),
                                           description=f"objects in the scene (1..{top} in {d}; "
-                                                      f"default {min(int(phys.n_blocks), top)}); "
+                                                      f"default {min(int(phys.n_objects), top)}); "
                                                       f"also spelled n_blocks"))
         if with_truth:
             own["truth"] = (truth, Field(default_factory=truth, description=truth.__doc__))

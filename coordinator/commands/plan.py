@@ -155,7 +155,7 @@ def run(args: argparse.Namespace) -> int:
             raise UsageError(f"--blocks: {args.blocks} does not match the {n_blocks} blocks "
                              f"in {args.state}")
     else:
-        n_blocks = (domains.load(args.domain).n_blocks if args.blocks is None
+        n_blocks = (domains.load(args.domain).n_objects if args.blocks is None
                     else _integer("--blocks", args.blocks, 1))
         state = task.initial_state(n_blocks)
     transition = {"pickup": _pickup(args.p_pickup),

@@ -222,6 +222,7 @@ def main(args) -> int:
     if args.print_config:
         print(json.dumps(config.model_dump(mode="json"), indent=2))
         return 0
+    from ..loop.observer import StepLog
     from ..loop.runner import run, write_result
     from tqdm import tqdm
 
@@ -230,10 +231,12 @@ def main(args) -> int:
     Path(args.out).mkdir(parents=True, exist_ok=True)
     steps_file = open(Path(args.out) / STEPS_FILE, "w", encoding="utf-8")
 
-    def on_episode(record, session, checkpoint):
-        for step in session.step_records:
+    def write_steps(records: list[dict]) -> None:
+        for step in records:
             steps_file.write(json.dumps(step, separators=(",", ":")) + "\n")
         steps_file.flush()
+
+    def on_episode(record, session, checkpoint):
         post = record["posterior"]
         counts = record.get("particles_per_action") or [0]
         if "size_mean" in post:
@@ -246,8 +249,6 @@ def main(args) -> int:
         if record.get("transit_fallbacks"):       # an unchecked transit must not go unnoticed
             bar.write(f"episode {record['episode']}: {record['transit_fallbacks']} action(s) without a "
                       f"checked transit: {record['transit_fallback_notes'][0]}", file=sys.stderr)
-        if tracker is not None:
-            tracker.episode(record, session)
         bar.update(1)
 
     sink = None
@@ -256,7 +257,10 @@ def main(args) -> int:
 
         sink = DirectorySink(Path(args.out) / "frames")
     try:
-        result = run(config, ray_address=args.ray_address, on_episode=on_episode, frames=sink)
+        # The steps file, TensorBoard and the progress bar all watch the run as its observers.
+        observers = [StepLog(write_steps)] + ([tracker] if tracker is not None else [])
+        result = run(config, ray_address=args.ray_address, on_episode=on_episode, frames=sink,
+                     observers=observers)
     finally:
         steps_file.close()
         if tracker is not None:

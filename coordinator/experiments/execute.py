@@ -40,16 +40,17 @@ def _run_remote():
     def run_task(config: dict, key: str, resume: dict | None, progress, checkpoint_s: float | None,
                  log_to: tuple[str, str] | None = None, keep_steps: bool = False):
         from ..agents import agent_spec
+        from ..loop.observer import StepLog
         from ..loop.runner import run
         from ..distributed.shard_pools import ShardPools
 
         cfg = RunConfig(**config)
         last = [time.monotonic()]
-        # The run's step records; None where a resumed checkpoint has none (made before
-        # they were kept): never a partial list.
+        # The run's step records (a StepLog observer); None where a resumed checkpoint has
+        # none (made before they were kept): never a partial list.
         steps = None
-        if keep_steps:
-            steps = [] if resume is None else (list(resume["steps"]) if "steps" in resume else None)
+        if keep_steps and (resume is None or "steps" in resume):
+            steps = StepLog(records=resume["steps"] if resume is not None else None)
         tracker = None
         if log_to is not None:              # (value, run name): one event folder per run
             from ..integrations.tracker import open_tracker
@@ -58,16 +59,13 @@ def _run_remote():
 
         def on_episode(record, session, checkpoint):
             if steps is not None:
-                steps.extend(session.step_records)
-                checkpoint["steps"] = steps
+                checkpoint["steps"] = steps.records
             send = (checkpoint_s is not None and record["episode"] + 1 < cfg.episodes
                     and time.monotonic() - last[0] >= checkpoint_s)
             if send:
                 last[0] = time.monotonic()
             if progress is not None:
                 progress.episode.remote(key, checkpoint if send else None)
-            if tracker is not None:
-                tracker.episode(record, session)
 
         # The run's particles stay in this task's process (n_shards=0): the experiment
         # spreads runs, not particles, over the cluster. Ray is already up in a task.
@@ -75,9 +73,10 @@ def _run_remote():
             with ShardPools(n_shards=0, max_pools=1, own_ray_thread=False) as shard_pools:
                 pool = (shard_pools.acquire(cfg.scene)
                         if agent_spec(cfg.agent).learn_belief else None)
-                result = run(cfg, pool=pool, on_episode=on_episode, resume=resume)
+                watching = [o for o in (steps, tracker) if o is not None]
+                result = run(cfg, pool=pool, on_episode=on_episode, resume=resume, observers=watching)
                 if steps is not None:
-                    result["steps"] = steps
+                    result["steps"] = steps.records
                 return result
         finally:
             if tracker is not None:

@@ -40,7 +40,7 @@ def run_object_count(spec: Spec, setting: Setting | None = None) -> int:
     whatever the runs had, and the optimum judged for 8)."""
     fields = {**spec.run_fields, **(setting.overrides if setting is not None else {})}
     given = fields.get("n_objects", fields.get("n_blocks"))
-    return int(given) if given is not None else int(_physics(spec.domain).n_blocks)
+    return int(given) if given is not None else int(_physics(spec.domain).n_objects)
 
 
 def t_star_params(spec: Spec, n_blocks: int | None = None, setting: Setting | None = None) -> dict:

@@ -2,7 +2,8 @@
 every failed action the real outcome side by side with the outcomes a few particles
 predicted (the heaviest, one that matched the real outcome, one that did not).
 
-A :class:`FrameRecorder` is attached to a session (``session.frames``) by ``runner.run``; it
+A :class:`FrameRecorder` is one of a session's observers (``coordinator.loop.observer``),
+added by ``runner.run``; it
 reads configurations and weights and never touches the run's state or generators, so a run
 with pictures has exactly the episodes of a run without (tests/api/test_frames.py). Frames
 go to a sink (``add(name, png, meta)``): a folder for ``tmoc run --frames``, the task store
@@ -14,13 +15,14 @@ import io
 import json
 import logging
 import time
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Protocol
 
 import numpy as np
 
 from sim_workers.configuration import Configuration
+
+from ..loop.observer import Prediction, RunObserver, StepEvent
 
 log = logging.getLogger("tmoc.frames")
 
@@ -31,18 +33,6 @@ MAX_FRAME_BYTES = 256 * 1024    # a frame larger than this is not kept (never se
 class FrameSink(Protocol):
     def add(self, name: str, png: bytes, meta: dict) -> None: ...
 
-
-@dataclass(frozen=True)
-class Prediction:
-    """What the particles predicted for one action: their end configurations (B, 5 + 7M),
-    symbolic outcomes, weights *before* the action's update, whether each matched the real
-    outcome (as the likelihood judged it) and their properties (rows of L)."""
-
-    configurations: np.ndarray
-    states: list
-    weights: np.ndarray
-    matched: np.ndarray
-    rows: np.ndarray
 
 
 def pick_particles(weights: np.ndarray, matched: np.ndarray) -> list[tuple[str, int]]:
@@ -87,8 +77,10 @@ def strip_png(panels: list[np.ndarray], titles: list[str], colours: list[str]) -
     return buf.getvalue()
 
 
-class FrameRecorder:
-    """Renders a run's frames into a sink; attach as ``session.frames``."""
+class FrameRecorder(RunObserver):
+    """Renders a run's frames into a sink: an observer of the run (``session.watch``)."""
+
+    wants_predictions = True        # a failed action's picture shows what particles predicted
 
     def __init__(self, domain: str, options: dict, truth: dict | None, sink: FrameSink) -> None:
         self.domain_name, self.options = domain, dict(options)
@@ -136,6 +128,15 @@ class FrameRecorder:
         return self.truth if self.truth is not None else fallback
 
     # -- events (from the session; a failure here never fails the run) ---------------------
+    def on_step(self, session, event: StepEvent) -> None:
+        if not event.success:
+            self.failed_action(event.episode, event.step, event.action, event.expected,
+                               event.observation.configuration, event.observation.state,
+                               session.believed_props(), event.prediction, session.props_of)
+
+    def on_episode(self, session, record: dict) -> None:
+        self.episode_end(record, session.observation.configuration, session.believed_props())
+
     def episode_end(self, record: dict, config: Configuration, believed: dict) -> None:
         try:
             props = self._truth_props(believed)

@@ -194,7 +194,7 @@ class TmocEnv(gym.Env):
         pre = self.physics.pre_pose(config, action, pose)
         sizes = np.asarray(self.physics.object_sizes(props), dtype=np.float64)
         held = self.physics.held_object(self._obs.state)
-        names_ = list(self.physics.block_names)
+        names_ = list(self.physics.learned_objects)
         held_size = float(sizes[names_.index(held)]) if held in names_ else 0.0
         transit = plan_pre_pose_transit(self.physics, config, pre, sizes, held_size,
                                         seed=lambda: int(self.np_random.integers(2**31))).path

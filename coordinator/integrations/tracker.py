@@ -16,6 +16,8 @@ from pathlib import Path
 
 import numpy as np
 
+from ..loop.observer import RunObserver
+
 SCHEMES = ("tensorboard",)
 
 
@@ -40,8 +42,8 @@ def open_tracker(value: str, run_name: str = "") -> "TensorBoardLog":
         raise TrackerError("tensorboard is not installed: pip install 'tmoc-service[tracker]'") from None
 
 
-class TensorBoardLog:
-    """One run's event file in `logdir`."""
+class TensorBoardLog(RunObserver):
+    """One run's event file in `logdir`: an observer of the run (``on_episode``)."""
 
     def __init__(self, logdir: Path) -> None:
         from tensorboard.summary.writer.event_file_writer import EventFileWriter
@@ -72,6 +74,9 @@ class TensorBoardLog:
                 self._histogram(step, f"posterior/{name}", values, w)
         self._writer.flush()
 
+    def on_episode(self, session, record: dict) -> None:
+        self.episode(record, session)
+
     def _scalars(self, step: int, values: dict) -> None:
         from tensorboard.compat.proto.event_pb2 import Event
         from tensorboard.compat.proto.summary_pb2 import Summary
@@ -95,4 +100,7 @@ class TensorBoardLog:
         self._writer.add_event(Event(wall_time=time.time(), step=step, summary=summary))
 
     def close(self) -> None:
-        self._writer.close()
+        """Flush and close the event file (again: nothing; the run closes its observers)."""
+        if self._writer is not None:
+            self._writer.close()
+            self._writer = None

@@ -21,9 +21,11 @@ from typing import Callable
 
 import numpy as np
 
+from sim_workers.configuration import Configuration
+
 from ..particle_filter.belief import Belief, heaviest_class, mode_mask
 
-__all__ = ["MAX_MODES", "pose_candidates", "choose_pose"]
+__all__ = ["MAX_MODES", "pose_candidates", "choose_pose", "real_pose", "mode_scale"]
 
 # Modes whose poses are candidates. Each costs N particle-actions per real action while the
 # belief is split; beyond three the remaining weight of a 16-32 particle belief is a few
@@ -105,3 +107,81 @@ def choose_pose(candidates: list[np.ndarray], success: Callable[..., np.ndarray]
             full[unsure], full[sure] = there, here
             chosen, held = alt, full
     return chosen
+
+
+# ----------------------------------------------------------------------------- the session's step 2
+def real_pose(session, config: Configuration, action: str) -> tuple[np.ndarray, np.ndarray | None]:
+    """Step 2 of the loop for `session`'s agent: the real pose x and (for TMOC) each
+    particle's x_i. Reads the session's belief, domain and settings; a bandit's or a random
+    grasp's draw comes from its generator."""
+    mode = session.agent.grasp
+    if mode == "belief":
+        poses = session.domain.action_poses(session.belief.particles, config, action)
+        view, cols = session._action_belief(action)
+        rule = session.config.pose_rule
+        if rule == "mean":                       # the paper: weighted mean of all x_i
+            return view.weighted_mean(poses, angular=(3,)), poses
+        if rule == "success" and session.shard_pool is not None:
+            return _most_successful_pose(session, config, action, view, cols, poses), poses
+        keep = mode_mask(view.particles[:, cols], view.weights, session.config.mode_bandwidth,
+                         scale=mode_scale(session.low, session.high)[cols])
+        keep = heaviest_class(session.domain.pose_classes(view.particles, config, action), view.weights, keep)
+        sub = Belief(view.particles[keep], view.log_weights[keep], view.low, view.high)
+        return sub.weighted_mean(poses[keep], angular=(3,)), poses
+    if mode == "bandit":
+        kind = action.partition("(")[0].strip()
+        arm = session.bandit.choose(kind, session.rng)
+        session._arm = (kind, arm)
+        return session.domain.action_pose(session.props_of(session.bandit.row(arm)), config, action), None
+    if mode == "random" and action.partition("(")[0].strip() in session.domain.grasp_actions:
+        L, n = session.L, session.n_blocks
+        if len(L.names) == 1:
+            s = session.rng.uniform(float(L.low[0]), float(L.high[0]), n)
+        else:   # every property of every block drawn from its prior
+            low, high = L.bounds(n, True)
+            s = session.rng.uniform(low, high)
+        return session.domain.action_pose(session.props_of(s), config, action), None
+    return session.domain.action_pose(session.believed_props(), config, action), None
+
+
+def mode_scale(low: np.ndarray, high: np.ndarray) -> np.ndarray:
+    """Per-dimension scale for the pose mode: each property's prior width over the size's,
+    so the bandwidth stays in metres of size and a kg/m^3 counts as its share of the density
+    prior (a metre and a kg/m^3 are not one Euclidean space)."""
+    width = high - low
+    return width / width[0]
+
+
+def _most_successful_pose(session, config: Configuration, action: str, view: Belief,
+                          cols: np.ndarray, poses: np.ndarray) -> np.ndarray:
+    """The candidate pose (each mode's, and the mean's) that the particle worlds predict
+    succeeds for most of the belief's weight; with ``pose_alternatives``, Y's other poses of
+    the action (the domain's) judged too."""
+    domain = session.domain
+    classes = domain.pose_classes(view.particles, config, action)
+    cands = pose_candidates(view.particles[:, cols], view.weights, poses, classes,
+                            session.config.mode_bandwidth, mode_scale(session.low, session.high)[cols])
+    if len(cands) == 1 and not session.config.pose_alternatives:
+        return cands[0]
+    expected = session.task.apply(session.state, action)
+    start = config.to_array()
+
+    def success(x: np.ndarray, rows: np.ndarray | None = None) -> np.ndarray:
+        traj = domain.action_trajectory(config, action, x)
+        t_pre = domain.transit_end_time(config, action, x)
+        sub = view.particles if rows is None else view.particles[rows]
+        res = session._simulate_rows(start, np.ascontiguousarray(sub), action, traj, t_pre)
+        session.particle_actions += res["particle_actions"]
+        session.particle_steps += res["particle_steps"]
+        # Each world's chance of success over the perception error (its nodes), so a
+        # pose with clearance beats one that grasps only where perception is exact.
+        return sum(np.exp(lw) * np.array([s == expected for s in r["states"]], dtype=np.float64)
+                   for lw, r in res.get("perception") or [(0.0, res)])
+
+    alternatives = None
+    if session.config.pose_alternatives:
+        def alternatives(x: np.ndarray) -> list[np.ndarray]:
+            return domain.pose_alternatives(config, action, x, view.particles)
+        if len(cands) == 1 and not alternatives(cands[0]):
+            return cands[0]             # nothing for the worlds to judge: no simulation
+    return choose_pose(cands, success, view.weights, alternatives)

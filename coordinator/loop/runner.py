@@ -4,7 +4,7 @@ from __future__ import annotations
 import json
 import time
 from pathlib import Path
-from typing import Callable
+from typing import Callable, Sequence
 
 import numpy as np
 
@@ -12,6 +12,7 @@ from sim_workers.engines import check_engine
 from sim_workers.reality_gap import SensorNoise
 
 from ..distributed.fanout import ShardPool
+from .observer import EpisodeCallback, RunObserver
 from .reality import ContextFailure, SimulatedReality
 from ..run_config import REALITY_STREAM, RunConfig, seed_stream
 from .session import EpisodeInterrupted, Session
@@ -105,10 +106,12 @@ def run(config: RunConfig, *, ray_address: str | None = None,
         on_episode: Callable[[dict, Session, dict], None] | None = None,
         resume: dict | None = None, should_stop: Callable[[], bool] | None = None,
         pool: ShardPool | None = None, kill_shard_at: int | None = None,
-        frames=None) -> dict:
+        frames=None, observers: Sequence[RunObserver] = ()) -> dict:
     """Run the episodes of `config`; returns the result record (see `tmoc run`).
 
-    on_episode(record, session, checkpoint) is called after every episode with a
+    `observers` (``coordinator.loop.observer.RunObserver``) watch the run: each step, each
+    episode, closed when it ends. on_episode(record, session, checkpoint) is one of them
+    (an ``EpisodeCallback``, called after the others), after every episode with a
     checkpoint from which ``run(config, resume=checkpoint)`` continues exactly where this
     run is (same results as an uninterrupted run). `should_stop` is polled between
     episodes. `pool` lets a long-lived service share one shard pool between tasks.
@@ -116,7 +119,8 @@ def run(config: RunConfig, *, ray_address: str | None = None,
     restarts it and the run ends with identical results.
 
     `frames` (a ``coordinator.integrations.frames.FrameSink``): scene pictures of the run go there (the
-    end of every episode, every failed action); they change nothing in the results.
+    end of every episode, every failed action), drawn by a ``FrameRecorder`` observer, first
+    of them; they change nothing in the results.
 
     ``runtime.nodes`` of the result lists the Ray nodes that ran particles (node_id,
     hostname, shards, particle_actions); the checkpoint carries them as ``nodes``.
@@ -137,10 +141,17 @@ def run(config: RunConfig, *, ray_address: str | None = None,
     if frames is not None:
         from ..integrations.frames import FrameRecorder
 
-        session.frames = FrameRecorder(config.domain, domain_options(config), reality.truth, frames)
+        session.watch(FrameRecorder(config.domain, domain_options(config), reality.truth, frames))
     # Reality's draws come from their own stream: the agent's decisions never shift them.
     reality_rng = reality_stream(config.seed, resume)
     nodes: list[dict] = []
+    for observer in observers:
+        session.watch(observer)
+    if on_episode is not None:
+        session.watch(EpisodeCallback(on_episode, lambda: {
+            "reality_rng": reality_rng.bit_generator.state,
+            "reality_rng_spawned": reality_rng.bit_generator.seed_seq.n_children_spawned,
+            "nodes": tally.report(nodes), "reruns": tally.reruns}))
     ray_s0 = pool.timings["ray_s"] if pool is not None else 0.0
     try:
         nodes = pool.nodes() if pool is not None else []
@@ -153,20 +164,13 @@ def run(config: RunConfig, *, ray_address: str | None = None,
             try:
                 # Polled before every action too: a cancel takes effect within one action
                 # (issue 25: 108.7 s at 16 blocks), the partial episode dropped.
-                record = session.run_episode(reality, reality_rng, should_stop)
+                session.run_episode(reality, reality_rng, should_stop)
             except EpisodeInterrupted:
                 break
-            if on_episode is not None:
-                on_episode(record, session, {"session": session.to_checkpoint(),
-                                             "reality_rng": reality_rng.bit_generator.state,
-                                             "reality_rng_spawned":
-                                                 reality_rng.bit_generator.seed_seq.n_children_spawned,
-                                             "nodes": tally.report(nodes),
-                                             "reruns": tally.reruns})
     finally:
         reality.close()
-        if session.frames is not None:
-            session.frames.close()
+        for observer in session.observers:
+            observer.close()
         ray_s = pool.timings["ray_s"] - ray_s0 if pool is not None else 0.0
         if own_pools is not None:
             own_pools.close()

@@ -25,19 +25,21 @@ from sim_workers.properties import SIZES_VARIATION_SCALE
 from sim_workers.trajectory import columns_of
 
 from ..agents import agent_spec
-from ..domains import load as load_domain, property_space, spec as domain_spec
+from ..domains import load as load_domain, property_space
+from .checkpoint import restore_session, session_checkpoint
 from .episode import EpisodeStats, utility_terms
+from .observer import Prediction, RunObserver, StepEvent
+from .particle_worlds import predictions, simulate_rows
 from ..transition.experience import ExperiencePool
 from ..baselines.grounding_bandit import GroundingBandit
 from ..particle_filter import Belief, ParticleFilter, RealStep, Reweighting
-from ..particle_filter.belief import heaviest_class, mode_mask, symbolic_log_likelihood
-from ..particle_filter.perception import gauss_hermite
+from ..particle_filter.belief import symbolic_log_likelihood
 from .reality import Observation
-from .real_pose import choose_pose, pose_candidates
-from ..run_config import AGENT_STREAM, RunConfig, seed_stream, stored_run_config
+from .real_pose import real_pose
+from ..run_config import AGENT_STREAM, RunConfig, seed_stream
 from .step_record import step_record
 from .transit import plan_pre_pose_transit
-from ..transition.transition_model import TransitionModel
+from ..transition.transition_model import TransitionModel, transition_table
 
 # A property whose posterior std is still over this share of its prior's (a uniform prior:
 # width / sqrt(12)) is reported `identified: false`: the data have not yet cut its plausible
@@ -88,7 +90,7 @@ class Session:
                   if self.agent.learn_belief else None)
         # The belief with its likelihood, kernel, monitor and move window (issues 24, 37).
         self.filter = ParticleFilter(belief, Reweighting(config, self.domain.measurement_model(),
-                                                         list(self.domain.block_names),
+                                                         list(self.domain.learned_objects),
                                                          len(self.L.names), self.per_block), config)
         if belief is not None and config.known_properties:
             self.belief = self._point_belief(config)
@@ -104,12 +106,12 @@ class Session:
         self.pending: PendingStep | None = None
         self.stats = EpisodeStats()
         self._t0 = 0.0
-        # Pictures (coordinator.integrations.frames.FrameRecorder): a view of the run, never part of its
-        # state; not checkpointed (the recorder holds a pybullet client of this process).
-        self.frames = None
-        self._prediction = None
+        # What watches the run (coordinator.loop.observer: pictures, step logs, checkpoints,
+        # trackers): a view of it, never part of its state, so not checkpointed.
+        self.observers: list[RunObserver] = []
+        self._prediction: Prediction | None = None
         # The current episode's steps as records (coordinator.loop.step_record: what an export
-        # needs); not checkpointed: a run or session resumes at an episode's start.
+        # needs), as observers got them; not checkpointed: a run resumes at an episode's start.
         self.step_records: list[dict] = []
         # TMP-RL's grounding by trial and error (its arm for the pending action, if any).
         self.bandit = GroundingBandit(self.low, self.high) if self.agent.grasp == "bandit" else None
@@ -133,6 +135,11 @@ class Session:
         """The episode's latest real steps (the resample-move's window)."""
         return self.filter.recent
 
+    def watch(self, observer: RunObserver) -> RunObserver:
+        """Add `observer` (called after the ones already there); returns it."""
+        self.observers.append(observer)
+        return observer
+
     def _point_belief(self, config: RunConfig) -> Belief:
         """Every particle at the true properties (L given, as in the paper's real-robot
         run): reweighting cannot move it, resampling finds nothing to resample."""
@@ -149,20 +156,8 @@ class Session:
             discount=self.config.sim_discount == "power_prior")
 
     def transition_table(self) -> list[dict]:
-        """T per context, for people: the success probability and the weighted counts it
-        comes from (all, and the real world's share), in the domain's context order;
-        ``sim_discount``: the share of the simulated counts T uses (None: no simulated ones)."""
-        T = self.transition
-        real = self.experience.counts()["real"]
-        rows = []
-        for name, k in T.contexts:
-            i = T._slot(name, k)
-            rs, rn = real.get((name, k), (0.0, 0.0))
-            rows.append({"action": name, "context": int(k), "p": T.probability(name, k),
-                         "successes": float(T.successes[name][i]), "trials": float(T.trials[name][i]),
-                         "real_successes": float(rs), "real_trials": float(rn),
-                         "sim_discount": T.discounts.get((name, k))})
-        return rows
+        """T per context, for people (``coordinator.transition.transition_model.transition_table``)."""
+        return transition_table(self.transition, self.experience)
 
     def truth_row(self) -> np.ndarray:
         """The hidden truth as a row of L (the "sizes" variation: block 1 is 20 % larger)."""
@@ -174,9 +169,15 @@ class Session:
         """(N, n_blocks) object sizes of every particle (the physics half's ``object_sizes``)."""
         return np.array([self.domain.object_sizes(self._props(row)) for row in self.belief.particles])
 
-    def _props(self, row: np.ndarray) -> dict:
+    def props_of(self, row: np.ndarray) -> dict:
         """A row of L as the domain's properties."""
         return self.domain.props_from_row(np.asarray(row, dtype=np.float64))
+
+    _props = props_of
+
+    def believed_props(self) -> dict:
+        """The belief's mean row of L as the domain's properties."""
+        return self.props_of(self.believed_row())
 
     def believed_row(self) -> np.ndarray:
         """The belief's weighted mean row of L (the prior's mean without a belief)."""
@@ -228,73 +229,9 @@ class Session:
         self.stats.planning_s += time.perf_counter() - t0
 
     def _real_pose(self, config: Configuration, action: str) -> tuple[np.ndarray, np.ndarray | None]:
-        """Step 2 of the loop: the real pose x and (for TMOC) each particle's x_i."""
-        mode = self.agent.grasp
-        if mode == "belief":
-            poses = self._particle_poses(config, action)
-            view, cols = self._action_belief(action)
-            if self.config.pose_rule == "mean":         # the paper: weighted mean of all x_i
-                return view.weighted_mean(poses, angular=(3,)), poses
-            if self.config.pose_rule == "success" and self.shard_pool is not None:
-                return self._most_successful_pose(config, action, view, cols, poses), poses
-            keep = mode_mask(view.particles[:, cols], view.weights, self.config.mode_bandwidth,
-                             scale=self._mode_scale()[cols])
-            keep = self._one_pose_class(keep, view, config, action)
-            sub = Belief(view.particles[keep], view.log_weights[keep], view.low, view.high)
-            return sub.weighted_mean(poses[keep], angular=(3,)), poses
-        if mode == "bandit":
-            kind = action.partition("(")[0].strip()
-            arm = self.bandit.choose(kind, self.rng)
-            self._arm = (kind, arm)
-            return self.domain.action_pose(self._props(self.bandit.row(arm)), config, action), None
-        if mode == "random" and action.partition("(")[0].strip() in self.domain.grasp_actions:
-            if len(self.L.names) == 1:
-                s = self.rng.uniform(float(self.L.low[0]), float(self.L.high[0]), self.n_blocks)
-            else:   # every property of every block drawn from its prior
-                low, high = self.L.bounds(self.n_blocks, True)
-                s = self.rng.uniform(low, high)
-            return self.domain.action_pose(self._props(s), config, action), None
-        return self.domain.action_pose(self._props(self.believed_row()), config, action), None
-
-    def _most_successful_pose(self, config: Configuration, action: str, view: Belief,
-                              cols: np.ndarray, poses: np.ndarray) -> np.ndarray:
-        """The candidate pose (each mode's, and the mean's; ``coordinator.loop.real_pose``) that
-        the particle worlds predict succeeds for most of the belief's weight; with
-        ``pose_alternatives``, Y's other poses of the action (the domain's) judged too."""
-        classes = self.domain.pose_classes(view.particles, config, action)
-        cands = pose_candidates(view.particles[:, cols], view.weights, poses, classes,
-                                self.config.mode_bandwidth, self._mode_scale()[cols])
-        if len(cands) == 1 and not self.config.pose_alternatives:
-            return cands[0]
-        expected = self.task.apply(self.state, action)
-        start = config.to_array()
-
-        def success(x: np.ndarray, rows: np.ndarray | None = None) -> np.ndarray:
-            traj = self.domain.action_trajectory(config, action, x)
-            t_pre = self.domain.transit_end_time(config, action, x)
-            sub = view.particles if rows is None else view.particles[rows]
-            res = self._simulate_rows(start, np.ascontiguousarray(sub), action, traj, t_pre)
-            self.particle_actions += res["particle_actions"]
-            self.particle_steps += res["particle_steps"]
-            # Each world's chance of success over the perception error (its nodes), so a
-            # pose with clearance beats one that grasps only where perception is exact.
-            return sum(np.exp(lw) * np.array([s == expected for s in r["states"]], dtype=np.float64)
-                       for lw, r in res.get("perception") or [(0.0, res)])
-
-        alternatives = None
-        if self.config.pose_alternatives:
-            def alternatives(x: np.ndarray) -> list[np.ndarray]:
-                return self.domain.pose_alternatives(config, action, x, view.particles)
-            if len(cands) == 1 and not alternatives(cands[0]):
-                return cands[0]             # nothing for the worlds to judge: no simulation
-        return choose_pose(cands, success, view.weights, alternatives)
-
-    def _one_pose_class(self, keep: np.ndarray, view: Belief, config: Configuration,
-                        action: str) -> np.ndarray:
-        """The mode's particles of one pose class (the domain's ``pose_classes``: a
-        discrete choice of Y per row of L, such as the container's tray layout)."""
-        classes = self.domain.pose_classes(view.particles, config, action)
-        return heaviest_class(classes, view.weights, keep)
+        """Step 2 of the loop: the real pose x and (for TMOC) each particle's x_i
+        (``coordinator.loop.real_pose.real_pose``)."""
+        return real_pose(self, config, action)
 
     def _action_belief(self, action: str) -> tuple[Belief, np.ndarray]:
         """The belief as `action` sees it and the columns of L it concerns: with weights per
@@ -304,17 +241,6 @@ class Session:
         if log_w is self.belief.log_weights:
             return self.belief, cols
         return Belief(self.belief.particles, log_w, self.belief.low, self.belief.high), cols
-
-    def _mode_scale(self) -> np.ndarray:
-        """Per-dimension scale for the pose mode: each property's prior width over the
-        size's, so the bandwidth stays in metres of size and a kg/m^3 counts as its share
-        of the density prior (a metre and a kg/m^3 are not one Euclidean space)."""
-        width = self.high - self.low
-        return width / width[0]
-
-    def _particle_poses(self, config: Configuration, action: str) -> np.ndarray:
-        """Y_i for every particle (the domain's ``action_poses``: vectorised where it can be)."""
-        return self.domain.action_poses(self.belief.particles, config, action)
 
     def _transit(self, config: Configuration, pre: np.ndarray) -> np.ndarray | None:
         """A collision-free path to the pre-pose among the observed obstacles
@@ -334,7 +260,7 @@ class Session:
 
     def _held_size(self, sizes: np.ndarray) -> float:
         """The believed size of the block in the hand (0: the hand is empty)."""
-        names = list(self.domain.block_names)
+        names = list(self.domain.learned_objects)
         held = self.domain.held_object(self.state)
         return float(sizes[names.index(held)]) if held in names else 0.0
 
@@ -377,16 +303,17 @@ class Session:
         self.experience.add_real(before.state, step.action, observation.state, step.expected)
         self.transition = self._transition_model()
         self._account(before.state, step, observation.state, success)
-        self.step_records.append(step_record(
+        record = step_record(
             episode=self.episode, step=self.stats.actions - 1, action=step.action, pose=step.pose,
             trajectory=step.trajectory, before=before, after=observation, expected=step.expected,
             success=success, belief=self.posterior(), object_names=list(self.domain.object_names),
-            channels=[c["name"] for c in self.domain.measurement_channels()], transit_end=step.transit_end))
-        if self.frames is not None and not success:
-            self.frames.failed_action(self.episode, self.stats.actions - 1, step.action, step.expected,
-                                      observation.configuration, observation.state,
-                                      self._props(self.believed_row()), self._prediction, self._props)
+            channels=[c["name"] for c in self.domain.measurement_channels()], transit_end=step.transit_end)
+        self.step_records.append(record)
+        event = StepEvent(self.episode, self.stats.actions - 1, step.action, step.expected, observation,
+                          success, record, self._prediction)
         self._prediction = None
+        for observer in list(self.observers):
+            observer.on_step(self, event)
         self.observation = observation
         self.pending = None
         if success:
@@ -419,7 +346,7 @@ class Session:
         loglik = self._symbolic_loglik(step, observation.state, res["states"])
         nodes = [(lw, self._symbolic_loglik(step, observation.state, r["states"]), r["measurements"])
                  for lw, r in res["perception"]] if res.get("perception") else None
-        if self.frames is not None:      # before the update: the weights that predicted
+        if any(o.wants_predictions for o in self.observers):   # before the update: the weights that predicted
             self._prediction = self._predicted(step, observation.state, res, sizes)
         # Simulated experience counts each world by how plausible it was before this real
         # outcome was absorbed (the paper adds the worlds' outcomes, then weighs them; with the
@@ -441,62 +368,16 @@ class Session:
 
     def _simulate_rows(self, start: np.ndarray, rows: np.ndarray, action: str, trajectory, start_time) -> dict:
         """The particle worlds as the filter sees them (a callable; its time is physics):
-        the shards' result at the perceived configuration `start`, with ``particle_actions``
-        and ``particle_steps`` spent and, where the domain declares the action sensitive to
-        perception (``misalignment``), ``perception``: (log weight, result) at each Gauss-Hermite
-        node of the perception error (``coordinator.particle_filter.perception``), the
-        perceived pose's own result among them."""
+        ``coordinator.loop.particle_worlds.simulate_rows`` on the session's shard pool."""
         t0 = time.perf_counter()
-        out = dict(self.shard_pool.simulate(start, rows, action, trajectory, start_time))
-        results = [out]
-        shifted = self._perception_nodes(start, action)
-        if shifted:
-            out["perception"] = []
-            for lw, node_start in shifted:
-                r = out if node_start is None else self.shard_pool.simulate(node_start, rows, action, trajectory,
-                                                                           start_time)
-                if node_start is not None:
-                    results.append(r)
-                out["perception"].append((lw, r))
+        out = simulate_rows(self.shard_pool, self.domain, self.config, start, rows, action, trajectory,
+                            start_time)
         self.stats.physics_s += time.perf_counter() - t0
-        out["particle_actions"] = len(rows) * len(results)
-        out["particle_steps"] = int(sum(int(np.asarray(r["steps"]).sum()) for r in results))
         return out
 
-    def _perception_nodes(self, start: np.ndarray, action: str) -> list[tuple[float, np.ndarray | None]]:
-        """(log weight, start) per quadrature node of the perception error along the
-        domain's ``misalignment`` axis, None for the perceived start itself; [] where the
-        action is not perception-sensitive or the run integrates nothing."""
-        n, sigma = self.config.perception_nodes, self.config.perception_sigma
-        if n <= 1 or sigma <= 0.0:
-            return []
-        where = self.domain.misalignment(Configuration.from_array(start), action)
-        if where is None:
-            return []
-        row, axis = where
-        x, log_w = gauss_hermite(n)
-        out = []
-        for xk, lw in zip(x.tolist(), log_w.tolist()):
-            if xk == 0.0:
-                out.append((lw, None))
-                continue
-            config = Configuration.from_array(start)
-            objects = config.objects.copy()
-            objects[row, :2] += xk * sigma * np.asarray(axis, dtype=np.float64)
-            out.append((lw, Configuration(config.robot, objects).to_array()))
-        return out
-
-    def _predicted(self, step: PendingStep, observed: frozenset[str], res: dict, rows: np.ndarray):
+    def _predicted(self, step: PendingStep, observed: frozenset[str], res: dict, rows: np.ndarray) -> Prediction:
         """The particles' predictions of this action, for its picture (copies; reads only)."""
-        from ..integrations.frames import Prediction
-
-        if self.config.match == "state":
-            matched = [s == observed for s in res["states"]]
-        else:
-            real_ok = observed == step.expected
-            matched = [(s == step.expected) == real_ok for s in res["states"]]
-        return Prediction(np.array(res["configurations"], copy=True), list(res["states"]),
-                          self.belief.weights.copy(), np.array(matched, dtype=bool), rows.copy())
+        return predictions(self.config.match, step.expected, observed, res, self.belief.weights, rows)
 
     def _symbolic_loglik(self, step: PendingStep | RealStep, observed: frozenset[str],
                          predicted: list) -> np.ndarray:
@@ -549,9 +430,9 @@ class Session:
         record = s.record(self.episode, self.posterior(),
                           float(self.belief.ess()) if self.belief is not None else None)
         self.episodes.append(record)
-        if self.frames is not None:
-            self.frames.episode_end(record, self.observation.configuration, self._props(self.believed_row()))
         self.episode += 1
+        for observer in list(self.observers):     # at the boundary: a checkpoint is possible
+            observer.on_episode(self, record)
         return record
 
     @contextmanager
@@ -566,46 +447,14 @@ class Session:
 
     # -- checkpoints -----------------------------------------------------------------------
     def to_checkpoint(self) -> dict:
-        """The whole learning state at an episode boundary, JSON-able: belief, experience
-        pool (T is derived from it), generator state, episode records and counters."""
-        if self.pending is not None or (self.observation is not None and not self.episode_done()):
-            raise RuntimeError("checkpoint: only at an episode boundary")
-        return {
-            "version": 1,
-            "domain_version": domain_spec(self.config.domain).version,
-            "config": self.config.model_dump(),
-            "belief": self.belief.to_dict() if self.belief is not None else None,
-            "reweighting": self.reweighting.to_dict(),
-            "bandit": self.bandit.to_dict() if self.bandit is not None else None,
-            "experience": self.experience.to_dict(),
-            "rng": self.rng.bit_generator.state,
-            "episode": self.episode,
-            "episodes": self.episodes,
-            "particle_actions": self.particle_actions,
-            "particle_steps": self.particle_steps,
-        }
+        """The whole learning state at an episode boundary, JSON-able
+        (``coordinator.loop.checkpoint``)."""
+        return session_checkpoint(self)
 
     @classmethod
     def from_checkpoint(cls, data: dict, shard_pool=None) -> "Session":
-        config = stored_run_config(data["config"])
-        stored, installed = int(data.get("domain_version", 1)), domain_spec(config.domain)     # absent: version 1
-        if stored != installed.version:
-            raise ValueError(f"checkpoint: made with {config.domain}-v{stored}; the installed domain is "
-                             f"{installed.id}, whose scene or contexts differ: start a new run")
-        session = cls(config, shard_pool)
-        if data["belief"] is not None:
-            session.belief = Belief.from_dict(data["belief"])
-        session.reweighting.load(data.get("reweighting"), session.dims)     # absent before issue 24
-        if session.bandit is not None:                                        # absent before issue 37
-            session.bandit = GroundingBandit.from_dict(data.get("bandit"), session.low, session.high)
-        session.experience = ExperiencePool.from_dict(data["experience"], session.task.context_of)
-        session.transition = session._transition_model()
-        session.rng.bit_generator.state = data["rng"]
-        session.episode = data["episode"]
-        session.episodes = list(data["episodes"])
-        session.particle_actions = data["particle_actions"]
-        session.particle_steps = data["particle_steps"]
-        return session
+        """The session `data` (``to_checkpoint``'s) was taken from, ready for its next episode."""
+        return restore_session(cls, data, shard_pool)
 
     def run_episode(self, reality, reality_rng: np.random.Generator,
                     should_stop: Callable[[], bool] | None = None) -> dict:

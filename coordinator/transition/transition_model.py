@@ -50,7 +50,7 @@ from planner.terms import parse_term   # re-exported: the one parser of ground t
 if TYPE_CHECKING:  # only for the type hint of from_experience; no import cycle at runtime
     from coordinator.transition.experience import ExperiencePool
 
-__all__ = ["TransitionModel", "parse_term"]
+__all__ = ["TransitionModel", "parse_term", "transition_table"]
 
 
 @dataclass(eq=False)  # arrays inside: element-wise == would be ambiguous
@@ -301,3 +301,20 @@ def sim_discount(real_successes: float, real_trials: float, sim_successes: float
     log_ml = _log_beta(a + real_successes, b + rf) - _log_beta(a, b)
     w = np.exp(log_ml - log_ml.max())
     return float(np.dot(w, _DELTAS) / w.sum())
+
+
+def transition_table(T: TransitionModel, experience) -> list[dict]:
+    """T per context, for people: the success probability and the weighted counts it comes
+    from (all, and the real world's share in `experience`, an ExperiencePool), in the
+    domain's context order; ``sim_discount``: the share of the simulated counts T uses
+    (None: no simulated ones)."""
+    real = experience.counts()["real"]
+    rows = []
+    for name, k in T.contexts:
+        i = T._slot(name, k)
+        rs, rn = real.get((name, k), (0.0, 0.0))
+        rows.append({"action": name, "context": int(k), "p": T.probability(name, k),
+                     "successes": float(T.successes[name][i]), "trials": float(T.trials[name][i]),
+                     "real_successes": float(rs), "real_trials": float(rn),
+                     "sim_discount": T.discounts.get((name, k))})
+    return rows

@@ -29,7 +29,7 @@ class ContainerDomain(PhysicsDomain):
     # the solver stops, and the grasp's opening (the likelihood's channel) moved by up to
     # 0.6 mm in a 3-episode run. Outcomes must not depend on leaving out: it stays off.
     leave_out_actions: tuple[str, ...] = ()
-    max_blocks = 16
+    max_objects = 16
 
     def __init__(self, spec: ContainerSpec | None = None, **overrides) -> None:
         spec = spec or ContainerSpec()
@@ -38,8 +38,8 @@ class ContainerDomain(PhysicsDomain):
             if unknown:
                 raise ValueError(f"container domain: unknown option(s) {sorted(unknown)}")
             spec = dataclasses.replace(spec, **overrides)
-        if not 1 <= spec.n_blocks <= self.max_blocks:
-            raise ValueError(f"n_blocks: {spec.n_blocks} is outside [1, {self.max_blocks}]")
+        if not 1 <= spec.n_blocks <= self.max_objects:
+            raise ValueError(f"n_blocks: {spec.n_blocks} is outside [1, {self.max_objects}]")
         if not MIN_DENSITY < spec.density <= MAX_DENSITY:
             raise ValueError(f"density: {spec.density} kg/m^3 is outside ({MIN_DENSITY:g}, {MAX_DENSITY:g}]")
         self.spec = spec
@@ -50,7 +50,7 @@ class ContainerDomain(PhysicsDomain):
         return self.spec.object_names
 
     @property
-    def block_names(self) -> list[str]:
+    def learned_objects(self) -> list[str]:
         return self.spec.block_names
 
     @property
@@ -192,7 +192,7 @@ class ContainerDomain(PhysicsDomain):
         weighed channel while an observation must carry all 17)."""
         return ([{"name": "finger_opening", "index": 0, "unit": "m", "sigma": 0.002}]
                 + [{"name": f"{b}_{ax}", "index": 1 + 2 * i + k, "unit": "m", "sigma": None}
-                   for i, b in enumerate(self.block_names) for k, ax in enumerate("xy")])
+                   for i, b in enumerate(self.learned_objects) for k, ax in enumerate("xy")])
 
     def measurement_model(self) -> tuple[np.ndarray, np.ndarray]:
         """(indices, std) of the measurements the belief's Gaussian likelihood uses.

@@ -36,7 +36,7 @@ class StackAndPushDomain(PhysicsDomain):
     # a residual summed over every contact row, left-out rows included. A push of the tower
     # keeps every block (x1.02): it stays whole.
     leave_out_actions: tuple[str, ...] = ("pickup", "stack")
-    max_blocks = MAX_BLOCKS
+    max_objects = MAX_BLOCKS
 
     def __init__(self, spec: StackAndPushSpec | None = None, **overrides) -> None:
         spec = spec or StackAndPushSpec()
@@ -71,7 +71,7 @@ class StackAndPushDomain(PhysicsDomain):
         return self.spec.object_names
 
     @property
-    def block_names(self) -> list[str]:
+    def learned_objects(self) -> list[str]:
         return self.spec.block_names
 
     @property
@@ -282,7 +282,7 @@ class StackAndPushDomain(PhysicsDomain):
         n = self.spec.n_blocks
         return ([{"name": "finger_opening", "index": 0, "unit": "m", "sigma": 0.002}]
                 + [{"name": f"{b}_{ax}", "index": 1 + 2 * i + k, "unit": "m", "sigma": None}
-                   for i, b in enumerate(self.block_names) for k, ax in enumerate("xy")]
+                   for i, b in enumerate(self.learned_objects) for k, ax in enumerate("xy")]
                 + [{"name": "held_weight", "index": 1 + 2 * n, "unit": "N", "sigma": self.force_sigma,
                     "sensed": True},
                    {"name": "grasp_width", "index": 2 + 2 * n, "unit": "m",

@@ -92,10 +92,11 @@ def test_mode_scale_puts_each_property_in_its_own_units():
     """The pose mode compares particles per dimension in units of each prior's width: two
     particles 5 kg/m^3 apart are one mode (1/540 of the prior, like 0.06 mm of size),
     two 1000 kg/m^3 apart are not (the bandwidth is 3 mm of a 30 mm prior, 10 %)."""
+    from coordinator.loop.real_pose import mode_scale
     from coordinator.particle_filter.belief import mode_mask
 
     s = Session(RunConfig(domain="stack_and_push", options=UNKNOWN))
-    scale = s._mode_scale()
+    scale = mode_scale(s.low, s.high)
     assert list(scale) == [1.0, pytest.approx(2700.0 / 0.03)]
     close = np.array([[0.040, 1000.0], [0.040, 1005.0], [0.040, 1002.0]])
     assert mode_mask(close, np.full(3, 1 / 3), 0.003, scale=scale).all()

@@ -421,3 +421,66 @@ def test_the_reality_holds_the_truth_exactly_by_one_path(domain, truth, variatio
         assert np.array_equal(sizes, want), (sizes, want)
     finally:
         reality.close()
+
+
+class _OldNames(ContainerDomain):
+    """A physics half written before issue 39: it sets the protocol's old names."""
+
+    name = "old_names"
+    max_blocks = 5
+
+    @property
+    def block_names(self) -> list[str]:
+        return ["b2", "b1"]
+
+
+class _NewNames(ContainerDomain):
+    """One written after: it sets the new names only."""
+
+    name = "new_names"
+    max_objects = 6
+
+    @property
+    def learned_objects(self) -> list[str]:
+        return ["b1"]
+
+
+def test_the_protocol_s_object_words_are_generic_and_the_old_ones_still_answer():
+    """The core asks `learned_objects`, `n_objects`, `max_objects` (issue 39: no block-world
+    words in the protocol); a domain that sets the old names is read through the new ones,
+    and one that sets the new names answers the old ones."""
+    old, new = _OldNames(n_blocks=3), _NewNames(n_blocks=2)
+    assert old.learned_objects == old.block_names == ["b2", "b1"]
+    assert old.max_objects == old.max_blocks == 5
+    assert new.block_names == new.learned_objects == ["b1"]
+    assert new.max_blocks == new.max_objects == 6
+    assert (old.n_objects, old.n_blocks, new.n_objects, new.n_blocks) == (3, 3, 2, 2)
+    assert domains.load("container", n_blocks=4).n_objects == 4
+    assert domains.describe("container")["n_objects"] == domains.describe("container")["n_blocks"] == 8
+
+
+class _ProbedByName(ContainerDomain):
+    """A probe declared by L's names alone: it records what it was handed."""
+
+    name = "probed_by_name"
+    seen: list = []
+
+    def probe_trial(self, action, load_k, rng, *, truth, belief):
+        type(self).seen.append((action, load_k, dict(truth), dict(belief)))
+        return truth["size"] == belief["size"]
+
+
+def test_a_probe_declared_by_name_gets_the_truth_and_belief_in_full(monkeypatch):
+    from sim_workers.probe import by_name, probe
+
+    assert by_name(_ProbedByName()) and not by_name(ContainerDomain())
+    with _registered(monkeypatch, "probed_by_name", _ProbedByName, "a probe by name"):
+        _ProbedByName.seen.clear()
+        # T*'s call: a size, the belief equal to the truth
+        assert probe("pickup", 0.05, load_k=2, trials=2, seed=1, n_blocks=3, domain="probed_by_name").successes == 2
+        # tmoc probe's call: the truth and the belief by name
+        r = probe("pickup", 0.05, 0.04, load_k=1, trials=1, n_blocks=3, domain="probed_by_name",
+                  truth={"size": 0.05}, belief={"size": 0.04})
+        assert r.successes == 0
+    assert _ProbedByName.seen == [("pickup", 2, {"size": 0.05}, {"size": 0.05})] * 2 + [
+        ("pickup", 1, {"size": 0.05}, {"size": 0.04})]

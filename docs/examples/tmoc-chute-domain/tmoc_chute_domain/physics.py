@@ -92,7 +92,7 @@ class ChuteSpec:
 
     @property
     def names(self) -> list[str]:
-        return [f"p{i + 1}" for i in range(self.n_blocks)]
+        return [f"p{i + 1}" for i in range(self.n_objects)]
 
     @property
     def lane_half(self) -> float:
@@ -113,7 +113,7 @@ class ChutePhysics(PhysicsDomain):
     """Pucks in a lane, swept in trains to a line; L = each puck's friction."""
 
     name = "chute"
-    max_blocks = 12
+    max_objects = 12
     logs_sensors = True
     probe_actions = ("sweep",)
     # What a run may set the sensors' noise to (`tmoc run --option`, a request's options):
@@ -127,8 +127,8 @@ class ChutePhysics(PhysicsDomain):
             if unknown:
                 raise ValueError(f"chute domain: unknown option(s) {sorted(unknown)}")
             spec = dataclasses.replace(spec, **overrides)
-        if not 1 <= spec.n_blocks <= self.max_blocks:
-            raise ValueError(f"n_blocks: {spec.n_blocks} is outside [1, {self.max_blocks}]")
+        if not 1 <= spec.n_blocks <= self.max_objects:
+            raise ValueError(f"n_blocks: {spec.n_blocks} is outside [1, {self.max_objects}]")
         lo, hi = FRICTION_BOUNDS
         if not lo <= spec.friction_low < spec.friction_high <= hi:
             raise ValueError(f"friction_low, friction_high: need {lo} <= low < high <= {hi}")
@@ -150,7 +150,7 @@ class ChutePhysics(PhysicsDomain):
                              (sp.true_friction,))
 
     def true_properties(self, sizes_variation: bool = False) -> dict:
-        return {"friction": np.full(self.n_blocks, self.spec.true_friction)}
+        return {"friction": np.full(self.n_objects, self.spec.true_friction)}
 
     def properties(self, props: dict) -> dict:
         """{"friction": (n,)}: one coefficient for every puck or one each, within bounds."""
@@ -160,9 +160,9 @@ class ChutePhysics(PhysicsDomain):
         if unknown:
             raise PropertyError(f"{unknown[0]}: unknown property (known: friction)")
         try:
-            mu = np.broadcast_to(np.asarray(props["friction"], dtype=np.float64), (self.n_blocks,))
+            mu = np.broadcast_to(np.asarray(props["friction"], dtype=np.float64), (self.n_objects,))
         except (TypeError, ValueError):
-            raise PropertyError(f"friction: expected one number or {self.n_blocks}") from None
+            raise PropertyError(f"friction: expected one number or {self.n_objects}") from None
         lo, hi = FRICTION_BOUNDS
         bad = ~np.isfinite(mu) | (mu < lo) | (mu > hi)
         if bad.any():
@@ -171,10 +171,10 @@ class ChutePhysics(PhysicsDomain):
         return {"friction": mu.copy()}
 
     def props_from_row(self, row: np.ndarray) -> dict:
-        return {"friction": self.L.split(row, self.n_blocks)["friction"]}
+        return {"friction": self.L.split(row, self.n_objects)["friction"]}
 
     def object_sizes(self, props: dict) -> np.ndarray:
-        return np.full(self.n_blocks, 2 * self.spec.puck_radius)
+        return np.full(self.n_objects, 2 * self.spec.puck_radius)
 
     # -- the scene ------------------------------------------------------------------------
     def scene_description(self, props: dict) -> SceneDescription:
@@ -204,7 +204,7 @@ class ChutePhysics(PhysicsDomain):
     def initial_configuration(self, props: dict) -> Configuration:
         sp = self.spec
         self.properties(props)
-        objects = np.array([[sp.start_x(i), 0.0, sp.puck_height / 2, 0, 0, 0, 1] for i in range(self.n_blocks)])
+        objects = np.array([[sp.start_x(i), 0.0, sp.puck_height / 2, 0, 0, 0, 1] for i in range(self.n_objects)])
         robot = np.array([sp.first_x, 0.0, sp.carry_height, 0.0, 0.0])
         return Configuration(robot, objects)
 
@@ -248,7 +248,7 @@ class ChutePhysics(PhysicsDomain):
         if not m:
             raise ValueError(f"action {action!r}: the chute's one action is sweep(pJ)")
         if m.group(1) not in self.spec.names:
-            raise ValueError(f"action {action!r}: no puck {m.group(1)} (pucks p1..p{self.n_blocks})")
+            raise ValueError(f"action {action!r}: no puck {m.group(1)} (pucks p1..p{self.n_objects})")
 
     def _puck(self, action: str) -> int:
         self.check_action(action)
@@ -350,7 +350,7 @@ class ChutePhysics(PhysicsDomain):
         return float(abs(np.mean(log.wrist_force[mid, 0])))
 
     def measurement_channels(self) -> list[dict]:
-        n, sp = self.n_blocks, self.spec
+        n, sp = self.n_objects, self.spec
         return ([{"name": f"{p}_x", "index": i, "unit": "m", "sigma": sp.position_sigma}
                  for i, p in enumerate(sp.names)]
                 + [{"name": "stroke_force", "index": n, "unit": "N", "sigma": sp.force_sigma, "sensed": True}])
@@ -360,21 +360,18 @@ class ChutePhysics(PhysicsDomain):
         return np.array([c["index"] for c in chans]), np.array([float(c["sigma"]) for c in chans])
 
     # -- probes and T* --------------------------------------------------------------------------
-    def probe_trial(self, action: str, true_size: float, believed_size: float, load_k: int,
-                    rng: np.random.Generator, **kwargs) -> bool:
-        """A sweep of a train of `load_k` pucks at the truth's friction (``truth``, by L's
-        names, as `tmoc probe --truth friction=V` gives it; default this world's
-        ``true_friction``), Y at the ``belief`` (default the truth), placed and timed with
-        the reality gap's jitter; True when all of them are delivered. The sizes are known
-        here: `true_size` and `believed_size` are not read."""
+    def probe_trial(self, action: str, load_k: int, rng: np.random.Generator, *, truth: dict,
+                    belief: dict) -> bool:
+        """A sweep of a train of `load_k` pucks at the `truth`'s friction with Y at the
+        `belief`'s (both by L's names, every property given: `tmoc probe --truth friction=V
+        --belief friction=W`, or T*'s probes at the world's ``true_friction``), placed and
+        timed with the reality gap's jitter; True when all of them are delivered."""
         if action != "sweep":
             raise ValueError(f"action: {action!r} is not one of sweep")
-        given = kwargs.get("truth") or {}
-        truth = {"friction": np.full(self.n_blocks, float(given.get("friction", self.spec.true_friction)))}
-        believed = kwargs.get("belief") or {}
-        belief = {"friction": np.full(self.n_blocks, float(believed["friction"]))} if "friction" in believed else truth
+        truth = {"friction": np.full(self.n_objects, float(truth["friction"]))}
+        belief = {"friction": np.full(self.n_objects, float(belief["friction"]))}
         config = self.initial_configuration(truth)
-        config = Configuration(config.robot, jitter_planar(rng, config.objects, range(self.n_blocks)))
+        config = Configuration(config.robot, jitter_planar(rng, config.objects, range(self.n_objects)))
         run_as = (lambda traj, a: executed(traj, a, rng, action_jitter(self, a)))
         with make_world(self) as world:
             config = world.reset(config, truth)
