@@ -92,7 +92,7 @@ class ChuteSpec:
 
     @property
     def names(self) -> list[str]:
-        return [f"p{i + 1}" for i in range(self.n_objects)]
+        return [f"p{i + 1}" for i in range(self.n_blocks)]
 
     @property
     def lane_half(self) -> float:
