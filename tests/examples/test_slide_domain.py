@@ -60,21 +60,15 @@ def test_y_at_the_truth_places_the_puck_and_a_wrong_belief_misses_both_ways(trut
         assert _push(truth, truth * 1.6) == "lost"   # too late: past it
 
 
-@pytest.mark.slow          # the session's Ray: the checks' actors
 @pytest.mark.parametrize("engine", ENGINES)
-def test_slide_passes_every_conformance_check(slide_registered, engine, ray_cluster):
+def test_slide_passes_every_conformance_check_in_both_engines(slide_registered, engine):
+    """In this process (its Ray actors could not import a plugin this test only put on
+    sys.path; installed, `tmoc check-domain slide` runs them too)."""
     from coordinator.conformance import CHECKS, check_domain
 
-    results = check_domain("slide", engine=engine)
+    results = check_domain("slide", ray_actors=False, engine=engine)
     assert [r.name for r in results] == list(CHECKS)
     assert not {r.name: r.detail for r in results if not r.ok}
-
-
-def test_slide_passes_the_checks_without_ray(slide_registered):
-    from coordinator.conformance import check_domain
-
-    failed = {r.name: r.detail for r in check_domain("slide", ray_actors=False) if not r.ok}
-    assert not failed, failed
 
 
 def test_the_plan_pushes_every_waiting_puck_and_is_worth_what_it_says():
