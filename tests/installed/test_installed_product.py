@@ -399,3 +399,21 @@ def test_the_chute_runs_over_http(with_chute):
         assert view["spec"]["domain"] == "chute" and view["progress"]["episodes_done"] == 2
         post = view["latest"]["posterior"]["properties"]["friction"]
         assert 0.15 <= post["mean"] <= 0.75 and post["std"] < 0.17, post
+
+
+# -- the smallest example domain (issue 39) ------------------------------------------------
+SLIDE = REPO / "docs" / "examples" / "tmoc-slide-domain"
+
+
+def test_the_slide_passes_check_domain_with_ray_actors_from_a_fresh_venv(venv, tmp_path_factory):
+    """Installed, its Ray actors import it too (the checkout's tests check it in-process)."""
+    src = tmp_path_factory.mktemp("slide") / "tmoc-slide-domain"
+    shutil.copytree(SLIDE, src, ignore=_TREE_IGNORE)
+    proc = run_in(venv, [venv["python"], "-m", "pip", "install", "-q", "--no-deps", str(src)], timeout=600)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    from coordinator.conformance import CHECKS
+
+    for engine in ("pybullet", "mujoco"):
+        proc = run_in(venv, [venv["tmoc"], "check-domain", "slide", "--engine", engine], timeout=600)
+        assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
+        assert f"slide ({engine}): {len(CHECKS)}/{len(CHECKS)} checks passed" in proc.stdout
