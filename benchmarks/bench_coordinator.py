@@ -38,7 +38,7 @@ def one_action(session: Session, start: Observation, action: str, res: dict, loo
     config = start.configuration
     t0 = time.perf_counter()
     if loop_y:
-        poses = np.array([session.domain.action_pose(session._props(s), config, action)
+        poses = np.array([session.domain.action_pose(session.props_of(s), config, action)
                           for s in session.belief.particles])
     else:
         poses = session.domain.action_poses(session.belief.particles, config, action)

@@ -36,7 +36,7 @@ def main() -> None:
                 shard_pool=ShardPool("container", {}, n_shards=0))
     d = s.domain
     config = d.initial_configuration(d.properties({"block_sizes": np.full(d.n_blocks, sizes[0])}))
-    pose = d.action_pose(s._props(np.full(d.n_blocks, args.believed)), config, ACTION)
+    pose = d.action_pose(s.props_of(np.full(d.n_blocks, args.believed)), config, ACTION)
     traj = d.action_trajectory(config, ACTION, pose)
     t_pre = d.transit_end_time(config, ACTION, pose)
     row, along = d.misalignment(config, ACTION)

@@ -48,6 +48,25 @@ def validate_positive(value, field: str, low: float = 0.0, high: float = np.inf)
     return x
 
 
+def per_object_property(props: Mapping, name: str, n: int, low: float, high: float) -> np.ndarray:
+    """``props[name]`` as (n,) floats within [low, high], from one number for every object or
+    one each, where `props` holds that property alone (an L of one property per object, as
+    the example domains' friction); PropertyError naming the field otherwise."""
+    if not isinstance(props, Mapping) or name not in props:
+        raise PropertyError(f"{name}: missing")
+    unknown = sorted(set(props) - {name})
+    if unknown:
+        raise PropertyError(f"{unknown[0]}: unknown property (known: {name})")
+    try:
+        arr = np.broadcast_to(np.asarray(props[name], dtype=np.float64), (n,))
+    except (TypeError, ValueError):
+        raise PropertyError(f"{name}: expected one number or {n}") from None
+    bad = np.flatnonzero(~np.isfinite(arr) | (arr < low) | (arr > high))
+    if bad.size:
+        raise PropertyError(f"{name}[{int(bad[0])}]: {float(arr[bad[0]])!r} is outside [{low}, {high}]")
+    return arr.copy()
+
+
 MIN_DENSITY = 1.0          # kg/m^3: below, not a solid block
 MAX_DENSITY = 25000.0      # above osmium
 # The "sizes" variation of the paper's experiments: block 1 is this much larger than the

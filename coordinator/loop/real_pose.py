@@ -117,7 +117,7 @@ def real_pose(session, config: Configuration, action: str) -> tuple[np.ndarray, 
     mode = session.agent.grasp
     if mode == "belief":
         poses = session.domain.action_poses(session.belief.particles, config, action)
-        view, cols = session._action_belief(action)
+        view, cols = session.action_belief(action)
         rule = session.config.pose_rule
         if rule == "mean":                       # the paper: weighted mean of all x_i
             return view.weighted_mean(poses, angular=(3,)), poses

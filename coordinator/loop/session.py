@@ -167,13 +167,12 @@ class Session:
     # -- particles -----------------------------------------------------------------------
     def particle_sizes(self) -> np.ndarray:
         """(N, n_blocks) object sizes of every particle (the physics half's ``object_sizes``)."""
-        return np.array([self.domain.object_sizes(self._props(row)) for row in self.belief.particles])
+        return np.array([self.domain.object_sizes(self.props_of(row)) for row in self.belief.particles])
 
     def props_of(self, row: np.ndarray) -> dict:
         """A row of L as the domain's properties."""
         return self.domain.props_from_row(np.asarray(row, dtype=np.float64))
 
-    _props = props_of
 
     def believed_props(self) -> dict:
         """The belief's mean row of L as the domain's properties."""
@@ -186,7 +185,7 @@ class Session:
         return np.asarray(self.reweighting.marginals(self.belief)[0], dtype=np.float64)
 
     def believed_sizes(self) -> np.ndarray:
-        return np.array(self.domain.object_sizes(self._props(self.believed_row())), dtype=np.float64)
+        return np.array(self.domain.object_sizes(self.props_of(self.believed_row())), dtype=np.float64)
 
     # -- episode -------------------------------------------------------------------------
     def start_episode(self, observation: Observation) -> None:
@@ -233,7 +232,7 @@ class Session:
         (``coordinator.loop.real_pose.real_pose``)."""
         return real_pose(self, config, action)
 
-    def _action_belief(self, action: str) -> tuple[Belief, np.ndarray]:
+    def action_belief(self, action: str) -> tuple[Belief, np.ndarray]:
         """The belief as `action` sees it and the columns of L it concerns: with weights per
         block, the particles under its block's weights (``Reweighting.action_view``), else
         the belief itself and every column."""
@@ -351,7 +350,7 @@ class Session:
         # Simulated experience counts each world by how plausible it was before this real
         # outcome was absorbed (the paper adds the worlds' outcomes, then weighs them; with the
         # weights after, the real outcome was counted twice, issue 37).
-        prior_weights = self._action_belief(step.action)[0].weights
+        prior_weights = self.action_belief(step.action)[0].weights
         real = RealStep(start, step.action, step.trajectory, step.transit_end, step.expected,
                         observation.state, np.asarray(observation.measurements, dtype=np.float64))
         update = self.filter.update(real, loglik, res["measurements"], self.rng,

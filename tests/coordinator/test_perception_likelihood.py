@@ -55,7 +55,7 @@ def _failed_zero_clearance_grasp(nodes: int) -> float:
     s = Session(RunConfig(true_size=0.0579, particles=len(SIZES), seed=3, particle_budget="fixed",
                           perception_nodes=nodes), shard_pool=ShardPool("container", {}, n_shards=0))
     config = s.domain.initial_configuration(s.domain.properties({"block_sizes": np.full(8, 0.0579)}))
-    pose = s.domain.action_pose(s._props(np.full(8, 0.0504)), config, ACTION)
+    pose = s.domain.action_pose(s.props_of(np.full(8, 0.0504)), config, ACTION)
     assert math.isclose(pose[4], 0.0579, abs_tol=1e-4)        # no clearance for the truth
     traj = s.domain.action_trajectory(config, ACTION, pose)
     t_pre = s.domain.transit_end_time(config, ACTION, pose)

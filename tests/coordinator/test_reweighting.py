@@ -246,7 +246,7 @@ def test_block_weights_keep_one_blocks_data_from_moving_another():
     assert (post["mean"][0], post["std"][0]) == (post0["mean"][0], post0["std"][0])
     assert abs(s.belief.mean()[0] - post0["mean"][0]) > 1e-4
     # The pose of a pickup of block 2 is averaged under block 2's weights.
-    view, cols = s._action_belief("pickup(r,b2,init)")
+    view, cols = s.action_belief("pickup(r,b2,init)")
     assert list(cols) == [1] and abs(view.mean()[1] - 0.041) < 0.002
     joint = session(sizes_variation=True, block_weights=False)
     _pickups_of_block_2(joint)

@@ -189,3 +189,16 @@ def test_properties_are_validated_once_per_particle_action(name, monkeypatch):
     rows = np.full((3, 1), 0.045)
     shard.simulate(config.to_array(), rows, action, traj, t0)
     assert len(checks) == len(rows)
+
+
+def test_one_number_per_object_is_checked_and_refusals_name_the_field():
+    from sim_workers.properties import PropertyError, per_object_property
+
+    assert per_object_property({"friction": 0.3}, "friction", 3, 0.02, 2.0).tolist() == [0.3] * 3
+    assert per_object_property({"friction": [0.1, 0.2]}, "friction", 2, 0.02, 2.0).tolist() == [0.1, 0.2]
+    for props, named in (({}, "friction: missing"), ({"friction": 0.3, "mass": 1}, "mass: unknown"),
+                         ({"friction": [0.1, 0.2, 0.3]}, "friction: expected one number or 2"),
+                         ({"friction": [0.1, float("nan")]}, r"friction\[1\]"),
+                         ({"friction": [0.1, 3.0]}, r"friction\[1\]: 3.0 is outside")):
+        with pytest.raises(PropertyError, match=named):
+            per_object_property(props, "friction", 2, 0.02, 2.0)

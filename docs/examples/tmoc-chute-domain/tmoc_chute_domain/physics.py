@@ -36,7 +36,7 @@ from sim_workers.configuration import Configuration, Workspace, quat_from_yaw
 from sim_workers.engines import make_world
 from sim_workers.grounded_world import act
 from sim_workers.obstacles import Box, body_box, hand_boxes
-from sim_workers.properties import PropertyError, PropertySpace
+from sim_workers.properties import PropertySpace, per_object_property
 from sim_workers.reality_gap import action_jitter, executed, jitter_planar
 from sim_workers.scene import Body, BoxShape, Gripper, MeshShape, SceneDescription
 
@@ -154,21 +154,7 @@ class ChutePhysics(PhysicsDomain):
 
     def properties(self, props: dict) -> dict:
         """{"friction": (n,)}: one coefficient for every puck or one each, within bounds."""
-        if not isinstance(props, dict) or "friction" not in props:
-            raise PropertyError("friction: missing")
-        unknown = sorted(set(props) - {"friction"})
-        if unknown:
-            raise PropertyError(f"{unknown[0]}: unknown property (known: friction)")
-        try:
-            mu = np.broadcast_to(np.asarray(props["friction"], dtype=np.float64), (self.n_objects,))
-        except (TypeError, ValueError):
-            raise PropertyError(f"friction: expected one number or {self.n_objects}") from None
-        lo, hi = FRICTION_BOUNDS
-        bad = ~np.isfinite(mu) | (mu < lo) | (mu > hi)
-        if bad.any():
-            i = int(np.flatnonzero(bad)[0])
-            raise PropertyError(f"friction[{i}]: {float(mu[i])!r} is outside [{lo}, {hi}]")
-        return {"friction": mu.copy()}
+        return {"friction": per_object_property(props, "friction", self.n_objects, *FRICTION_BOUNDS)}
 
     def props_from_row(self, row: np.ndarray) -> dict:
         return {"friction": self.L.split(row, self.n_objects)["friction"]}

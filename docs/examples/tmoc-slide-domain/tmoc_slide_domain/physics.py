@@ -23,7 +23,7 @@ from sim_workers import trajectory as tr
 from sim_workers.base import PhysicsDomain
 from sim_workers.configuration import Configuration, quat_from_yaw
 from sim_workers.obstacles import Box, body_box, hand_boxes
-from sim_workers.properties import PropertyError, PropertySpace
+from sim_workers.properties import PropertySpace, per_object_property
 from sim_workers.scene import Body, BoxShape, Gripper, SceneDescription
 
 _PUSH = re.compile(r"^push\((p\d+)\)$")
@@ -115,20 +115,7 @@ class SlidePhysics(PhysicsDomain):
 
     def properties(self, props: dict) -> dict:
         """{"friction": (n,)}: one coefficient for every puck or one each, within bounds."""
-        if not isinstance(props, dict) or "friction" not in props:
-            raise PropertyError("friction: missing")
-        unknown = sorted(set(props) - {"friction"})
-        if unknown:
-            raise PropertyError(f"{unknown[0]}: unknown property (known: friction)")
-        try:
-            mu = np.broadcast_to(np.asarray(props["friction"], dtype=np.float64), (self.n_objects,))
-        except (TypeError, ValueError):
-            raise PropertyError(f"friction: expected one number or {self.n_objects}") from None
-        lo, hi = FRICTION_BOUNDS
-        bad = np.flatnonzero(~np.isfinite(mu) | (mu < lo) | (mu > hi))
-        if bad.size:
-            raise PropertyError(f"friction[{bad[0]}]: {float(mu[bad[0]])!r} is outside [{lo}, {hi}]")
-        return {"friction": mu.copy()}
+        return {"friction": per_object_property(props, "friction", self.n_objects, *FRICTION_BOUNDS)}
 
     def props_from_row(self, row: np.ndarray) -> dict:
         return {"friction": self.L.split(row, self.n_objects)["friction"]}
