@@ -53,7 +53,7 @@ class SlideSpec:
     push_accel: float = 40.0           # m/s^2, up to speed and braking: far harder than friction (mu g)
     position_sigma: float = 0.002      # m, the camera
     mu_finger: float = 0.5
-    clearance: float = 0.002           # fingers behind the puck before the push
+    clearance: float = 0.006           # fingers behind the puck: 3 x the 2 mm perception sigma, so they come down clear of it
     tool_z: float = 0.01               # the push at the puck's mid-height: no torque to tip it
     carry_height: float = 0.12
     move_speed: float = 0.4
