@@ -153,6 +153,14 @@ class RunConfig(BaseModel):
     # Metropolis-Hastings against the likelihood of the last real steps re-simulated;
     # "prior": rows redrawn from the prior at uniform weight (issue 24).
     recovery: Literal["mh_move", "prior"] = "mh_move"
+    # After every resample, and after a step no row explained, Gilks and Berzuini's
+    # resample-move (issue 37): MAX_SWEEPS Metropolis-Hastings sweeps over the rows against
+    # the belief before the step (its kernel density) times the step's likelihood, for a
+    # step sharper than the particles' spacing (docs/LOOP.md, "Resample-move after a sharp
+    # step"). Off by default until the learning benchmark over the prior has judged it:
+    # measured, it helps a small set at the slide and in a synthetic sharp channel, and
+    # leaves a tail there (the outlier floor hides where the peak is).
+    move_after_resample: bool = False
     # Disjoint ranges keep the long-term average the slower one for any pair the schema
     # allows (a cross-field check would refuse schema-valid requests).
     lock_in_slow: float = Field(0.05, gt=0, lt=0.2)
@@ -366,7 +374,7 @@ PRE_SENSOR_NOISE = {"sensor_noise": 0.0, "sensor_bias": 0.0, "sensor_tails": "ga
 # pose): `tmoc run --config` with these reproduces it, and the benchmarks' "before".
 PRE_ISSUE_37_FILTER = {"ess_keep": 0.5, "resample_kernel": "rpf", "jitter_floor": 0.02,
                        "model_error": "online", "recovery": "prior", "pose_rule": "mode",
-                       "perception_nodes": 1, "pose_alternatives": False}
+                       "perception_nodes": 1, "pose_alternatives": False, "move_after_resample": False}
 
 PRE_ISSUE_24_FILTER = {"outlier_rate": 0.0, "model_error": "none", "ess_keep": 0.0,
                        "resample_kernel": "jitter", "block_weights": False, "lock_in": False}
@@ -387,6 +395,8 @@ def stored_run_config(fields: dict) -> RunConfig:
     fields.setdefault("sim_discount", "none")
     # Before issue 37's filter: the lock-in monitor redrew from the prior.
     fields.setdefault("recovery", "prior")
+    # Before the move after resampling.
+    fields.setdefault("move_after_resample", False)
     # Before Y's alternatives: Y's pose alone.
     fields.setdefault("pose_alternatives", False)
     # Before issue 24's filter: the plain Gaussian, sensor sigma, fixed jitter, no lock-in.

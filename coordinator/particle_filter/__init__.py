@@ -9,7 +9,8 @@ below are its parts, each one concept:
 - ``reweighting``: one step's weighing (per block group), the kernel and the monitor;
 - ``block_weights``: weights per block when L is per block;
 - ``rejuvenation``: the Liu-West / regularised kernel, the lock-in monitor;
-- ``resample_move``: the Metropolis-Hastings move over the last real steps;
+- ``resample_move``: the Metropolis-Hastings moves: over the last real steps when the
+  monitor fires, and after a sharp step (``move_after_resample``);
 - ``particle_budget``: KLD-sampling's count for the next action.
 
 It imports no world and no planner: the particle worlds reach it as a callable.

@@ -11,7 +11,13 @@ belief once the particle worlds have replayed it.
 3. **resample** with the Liu-West kernel where the effective sample size asks for it
    (``Reweighting.resample``);
 4. **move**: one Metropolis-Hastings step per row against the window if the lock-in
-   monitor or the innovation bias test asked for one (``resample_move.mh_move``);
+   monitor or the innovation bias test asked for one (``resample_move.mh_move``); else,
+   in a run that sets ``move_after_resample``, after a resample or a step no row
+   explained, Gilks and Berzuini's resample-move:
+   sweeps against the belief before the step times the step's likelihood
+   (``resample_move.resample_move``), so that a step sharper than the particles' spacing
+   leaves a set that represents the posterior, not the one or two rows that happened to
+   lie near it (or, with every row beyond the outlier floor, none);
 5. **resize**: the next action's particle count by KLD-sampling (``particle_budget``),
    when the run's budget is ``kld``.
 
@@ -30,7 +36,7 @@ import numpy as np
 from .belief import Belief
 from .particle_budget import next_count
 from .rejuvenation import rpf_bandwidth
-from .resample_move import MOVE_WINDOW, RealStep, mh_move
+from .resample_move import MOVE_WINDOW, KernelDensity, RealStep, mh_move, resample_move
 from .reweighting import Reweighting
 
 __all__ = ["FilterUpdate", "ParticleFilter", "Simulate", "Symbolic"]
@@ -94,11 +100,14 @@ class ParticleFilter:
         carries them as ``"perception"`` (log weight, result) for a move's window."""
         b, rw = self.belief, self.reweighting
         n = b.n
+        before = self._density_before(step.action)
         weighed = rw.weigh(b, step.action, symbolic_ll, step.measurements, simulated_measurements, nodes)
         self.recent.append(step)
         del self.recent[:-MOVE_WINDOW]
         resampled, injected = rw.resample(b, rng, step.action, rejuvenate=not self.frozen)
         moved, spent = self._move(rng, simulate, symbolic)
+        if before is not None and not spent and (resampled or not weighed.explained):
+            moved, spent = self._resample_move(before, step, rng, simulate, symbolic)
         next_n = None
         if self.config.particle_budget == "kld" and not self.frozen:
             next_n = self.kld_count()
@@ -107,6 +116,39 @@ class ParticleFilter:
                 resampled = True
         return FilterUpdate(float(b.ess()), bool(resampled), n, weighed.information, weighed.explained,
                             injected + moved, next_n, weighed.informative, spent)
+
+    def _density_before(self, action: str) -> tuple[np.ndarray, KernelDensity] | None:
+        """The columns an action's update concerns and the belief over them before the
+        update, as the kernel density resampling draws from (None: no move after
+        resampling in this run)."""
+        if not self.config.move_after_resample or self.frozen or self.belief.n < 2:
+            return None
+        b = self.belief
+        log_w, dims = self.reweighting.action_view(b, action)
+        floor = max(self.config.jitter_floor, 1e-6) * (b.high - b.low)[dims]
+        return dims, KernelDensity.of(b.particles[:, dims], log_w, rpf_bandwidth(b.n, dims.size), floor)
+
+    def _step_loglik(self, symbolic: Symbolic) -> Callable[[RealStep, dict], np.ndarray]:
+        """A re-simulated step's log-likelihood per row, as the update weighed it."""
+        def step_loglik(real: RealStep, res: dict) -> np.ndarray:
+            if res.get("perception"):
+                return self.reweighting.node_log_likelihood(
+                    [(lw, symbolic(real, real.observed, r["states"]), r["measurements"]) for lw, r in res["perception"]],
+                    real.measurements)
+            sym = symbolic(real, real.observed, res["states"])
+            return self.reweighting.log_likelihood(sym, real.measurements, res["measurements"])[0]
+        return step_loglik
+
+    @staticmethod
+    def _counted(simulate: Simulate) -> tuple[Simulate, list[int]]:
+        """`simulate`, counting the particle-actions it spends (in the list's one entry)."""
+        spent = [0]
+
+        def counted(start, rows, *args, **kwargs) -> dict:
+            out = simulate(start, rows, *args, **kwargs)
+            spent[0] += int(out.get("particle_actions", len(rows)))
+            return out
+        return counted, spent
 
     def _move(self, rng: np.random.Generator, simulate: Simulate, symbolic: Symbolic) -> tuple[int, int]:
         """The pending Metropolis-Hastings move, if any: (rows moved, particle-actions spent)."""
@@ -118,26 +160,26 @@ class ParticleFilter:
         width = b.high - b.low
         scale = np.maximum(rpf_bandwidth(b.n, dims.size) * b.std()[dims],
                            max(self.config.jitter_floor, 1e-6) * width[dims])
-
-        def step_loglik(real: RealStep, res: dict) -> np.ndarray:
-            if res.get("perception"):
-                return self.reweighting.node_log_likelihood(
-                    [(lw, symbolic(real, real.observed, r["states"]), r["measurements"]) for lw, r in res["perception"]],
-                    real.measurements)
-            sym = symbolic(real, real.observed, res["states"])
-            return self.reweighting.log_likelihood(sym, real.measurements, res["measurements"])[0]
-
-        spent = 0
-
-        def counted(start, rows, *args, **kwargs) -> dict:
-            nonlocal spent
-            out = simulate(start, rows, *args, **kwargs)
-            spent += int(out.get("particle_actions", len(rows)))
-            return out
-
-        rows, moved = mh_move(b.particles, dims, b.low, b.high, scale, self.recent, counted, step_loglik, rng)
+        counted, spent = self._counted(simulate)
+        rows, moved = mh_move(b.particles, dims, b.low, b.high, scale, self.recent, counted,
+                              self._step_loglik(symbolic), rng)
         b.particles = rows
-        return moved, spent
+        return moved, spent[0]
+
+    def _resample_move(self, before: tuple[np.ndarray, KernelDensity], step: RealStep,
+                       rng: np.random.Generator, simulate: Simulate, symbolic: Symbolic) -> tuple[int, int]:
+        """The move after a resample (module docstring, step 4): (rows moved, particle-actions)."""
+        dims, density = before
+        b = self.belief
+        counted, spent = self._counted(simulate)
+        rw = self.reweighting
+        weighed = self.config.use_measurements and rw.channels.size > 0
+        rows, accepted, _ = resample_move(b.particles, dims, b.low, b.high, density, step, counted,
+                                          self._step_loglik(symbolic), rng,
+                                          channels=rw.channels if weighed else None,
+                                          sigma=rw.sigma() if weighed else None)
+        b.particles = rows
+        return accepted, spent[0]
 
     def kld_count(self) -> int:
         """The next action's particle count (KLD-sampling over the current posterior)."""

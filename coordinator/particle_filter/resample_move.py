@@ -24,17 +24,28 @@ rejected or stay local). Older evidence is carried by where the rows were (the r
 walk's share starts from them), not re-simulated: the window bounds the cost at
 2 x N x ``MOVE_WINDOW`` particle-actions per move, and a move happens only when the
 monitor fires.
+
+``resample_move`` is Gilks and Berzuini's scheme as written, for a run that sets
+``move_after_resample``: after every resample (and every step no row explained) the rows
+take ``MAX_SWEEPS`` sweeps against the belief before the step, as the kernel density the
+regularised filter resamples from (``KernelDensity``), times that one step's likelihood. A
+reading that pins L to a hundredth of the prior leaves the weight on the one or two rows
+nearest it (or, beyond the outlier floor, on none); the sweeps put rows where the reading
+is instead of where the resampling happened to copy them.
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Callable, Sequence
 
 import numpy as np
 
 from .belief import reflect_into
+from .rejuvenation import rpf_bandwidth
 
-__all__ = ["MOVE_WINDOW", "PRIOR_SHARE", "RealStep", "propose", "mh_move"]
+__all__ = ["MOVE_WINDOW", "PRIOR_SHARE", "MAX_SWEEPS", "RealStep", "KernelDensity", "LinearisedProposal",
+           "propose", "mh_move", "resample_move"]
 
 # Real steps re-simulated per move. The monitor fires after two or three badly predicted
 # observations (REDRAW_BELOW at the default rates), so a window of 8 holds those and about
@@ -46,6 +57,15 @@ MOVE_WINDOW = 8
 # holds), half local (to refine where the rows are). Any share in (0, 1) leaves the target
 # invariant; 1/2 is the mixture that neither starves.
 PRIOR_SHARE = 0.5
+
+# Metropolis-Hastings sweeps per resample-move (``resample_move``): a fixed number, not
+# "until every row has moved" (where every row lies beyond the outlier floor the likelihood
+# is flat for all of them, every proposal there is accepted, and that rule stopped after one
+# sweep with nothing found). Swept on a synthetic channel 10x sharper than the particles'
+# spacing: 4 sweeps bring every run within 2x the exact posterior's std, 8 to a median of
+# 1.03x (docs/LOOP.md, "Resample-move after a sharp step"). A move costs (1 + MAX_SWEEPS) x
+# N particle-actions where a step costs N.
+MAX_SWEEPS = 8
 
 
 @dataclass(frozen=True)
@@ -105,3 +125,201 @@ def mh_move(rows: np.ndarray, dims: np.ndarray, low: np.ndarray, high: np.ndarra
     out = rows.copy()
     out[accept] = proposed[accept]
     return out, int(accept.sum())
+
+
+@dataclass(frozen=True)
+class KernelDensity:
+    """The belief before a step as a density: the Gaussian kernel density estimate the
+    regularised filter resamples from (Liu and West: centres shrunk towards the weighted
+    mean by a = sqrt(1 - h^2), kernel std h x the weighted std), truncated to the prior's
+    box. The resample-move's target is this density times the step's likelihood."""
+
+    centres: np.ndarray     # (N, k)
+    log_w: np.ndarray       # (N,), normalised
+    bandwidth: np.ndarray   # (k,) kernel std per column
+
+    @classmethod
+    def of(cls, cols: np.ndarray, log_w: np.ndarray, h: float, floor: np.ndarray) -> "KernelDensity":
+        """The density of weighted rows `cols` (N, k) with bandwidth factor `h`; `floor` the
+        least kernel std per column (the jitter floor)."""
+        cols = np.asarray(cols, dtype=np.float64)
+        log_w = np.asarray(log_w, dtype=np.float64)
+        log_w = log_w - _logsumexp(log_w)
+        w = np.exp(log_w)
+        mean = w @ cols
+        std = np.sqrt(np.maximum(w @ (cols - mean) ** 2, 0.0))
+        a = np.sqrt(max(1.0 - h * h, 0.0))
+        return cls(a * cols + (1.0 - a) * mean, log_w, np.maximum(h * std, floor))
+
+    def moments(self) -> tuple[np.ndarray, np.ndarray]:
+        """The density's mean and covariance (the centres' weighted ones plus the kernel's)."""
+        w = np.exp(self.log_w)
+        mean = w @ self.centres
+        dev = self.centres - mean
+        return mean, (dev * w[:, None]).T @ dev + np.diag(self.bandwidth ** 2)
+
+    def log_density(self, x: np.ndarray) -> np.ndarray:
+        """Log density at each row of `x` (M, k) (of the untruncated mixture)."""
+        z = (np.asarray(x, dtype=np.float64)[:, None, :] - self.centres[None]) / self.bandwidth
+        norm = np.sum(np.log(self.bandwidth)) + 0.5 * self.bandwidth.size * math.log(2 * math.pi)
+        return _logsumexp(self.log_w[None] - 0.5 * np.sum(z * z, axis=-1), axis=1) - norm
+
+    def draw(self, m: int, rng: np.random.Generator) -> np.ndarray:
+        """`m` draws of the untruncated mixture."""
+        idx = rng.choice(len(self.log_w), size=m, p=np.exp(self.log_w))
+        return self.centres[idx] + self.bandwidth * rng.standard_normal((m, self.centres.shape[1]))
+
+    def sample(self, m: int, rng: np.random.Generator, low: np.ndarray, high: np.ndarray) -> np.ndarray:
+        """`m` draws inside [low, high] (out-of-box draws drawn again: the truncated density,
+        whose normalising constant cancels in the acceptance ratio)."""
+        out = np.empty((m, self.centres.shape[1]))
+        todo = np.arange(m)
+        for _ in range(64):
+            if todo.size == 0:
+                return out
+            idx = rng.choice(len(self.log_w), size=todo.size, p=np.exp(self.log_w))
+            draw = self.centres[idx] + self.bandwidth * rng.standard_normal((todo.size, out.shape[1]))
+            out[todo] = draw
+            todo = todo[np.any((draw < low) | (draw > high), axis=1)]
+        out[todo] = np.clip(out[todo], low, high)   # a box the kernel barely reaches
+        return out
+
+
+def _logsumexp(a: np.ndarray, axis: int | None = None) -> np.ndarray:
+    m = np.max(a, axis=axis, keepdims=True)
+    out = m + np.log(np.sum(np.exp(a - m), axis=axis, keepdims=True))
+    return np.squeeze(out, axis=axis) if axis is not None else float(out.squeeze())
+
+
+@dataclass(frozen=True)
+class LinearisedProposal:
+    """An independence proposal where the step's reading says L is: the belief before
+    (as a Gaussian of the kernel density's moments) updated by the reading through the
+    particle worlds' measurements regressed linearly on L over the current rows (a Kalman
+    step with an ensemble-estimated observation matrix, as the unscented and extended
+    particle filters' proposals; van der Merwe et al. 2000). The regression's residual
+    scatter is added to the sensor's variance, so a poor linear fit widens the proposal
+    instead of pointing it confidently wrong. None where the fit is undetermined."""
+
+    mean: np.ndarray
+    cov: np.ndarray
+    chol: np.ndarray
+
+    @classmethod
+    def fit(cls, cols: np.ndarray, predicted: np.ndarray, observed: np.ndarray, sigma: np.ndarray,
+            before: KernelDensity) -> "LinearisedProposal | None":
+        """`cols` (n, k) the rows' columns moved; `predicted` (n, c) their simulated weighed
+        channels, `observed` (c,) the readings, `sigma` (c,) the likelihood's sigma."""
+        predicted = np.asarray(predicted, dtype=np.float64)
+        observed = np.asarray(observed, dtype=np.float64)
+        keep = np.isfinite(observed) & np.all(np.isfinite(predicted), axis=0)
+        n, k = cols.shape
+        if not keep.any() or n < k + 3:
+            return None
+        x_mean = cols.mean(axis=0)
+        design = np.column_stack([np.ones(n), cols - x_mean])
+        coef, *_ = np.linalg.lstsq(design, predicted[:, keep], rcond=None)
+        resid = predicted[:, keep] - design @ coef
+        resid_var = np.sum(resid * resid, axis=0) / (n - k - 1)
+        jac = coef[1:].T                                        # (c, k)
+        m, p = before.moments()
+        s_cov = jac @ p @ jac.T + np.diag(np.asarray(sigma, dtype=np.float64)[keep] ** 2 + resid_var)
+        gain = p @ jac.T @ np.linalg.inv(s_cov)
+        innovation = observed[keep] - (coef[0] + jac @ (m - x_mean))
+        mean = m + gain @ innovation
+        cov = p - gain @ jac @ p
+        cov = 0.5 * (cov + cov.T) + np.diag(1e-12 + 1e-9 * np.diag(p))
+        try:
+            chol = np.linalg.cholesky(cov)
+        except np.linalg.LinAlgError:
+            return None
+        return cls(mean, cov, chol)
+
+    def log_density(self, x: np.ndarray) -> np.ndarray:
+        """Log density at each row of `x` (M, k)."""
+        z = np.linalg.solve(self.chol, (np.asarray(x, dtype=np.float64) - self.mean).T)
+        norm = np.sum(np.log(np.diag(self.chol))) + 0.5 * self.mean.size * math.log(2 * math.pi)
+        return -0.5 * np.sum(z * z, axis=0) - norm
+
+    def draw(self, m: int, rng: np.random.Generator) -> np.ndarray:
+        """`m` draws of the untruncated Gaussian."""
+        return self.mean + rng.standard_normal((m, self.mean.size)) @ self.chol.T
+
+
+def _simulated(step: RealStep, rows: np.ndarray, simulate: Callable[..., dict],
+               step_log_likelihood: Callable[[RealStep, dict], np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    """Each row's log-likelihood of `step`, and its simulated measurements."""
+    res = simulate(step.start, rows, step.action, step.trajectory, step.start_time)
+    return step_log_likelihood(step, res), np.asarray(res["measurements"], dtype=np.float64)
+
+
+def resample_move(rows: np.ndarray, dims: np.ndarray, low: np.ndarray, high: np.ndarray,
+                  before: KernelDensity, step: RealStep, simulate: Callable[..., dict],
+                  step_log_likelihood: Callable[[RealStep, dict], np.ndarray],
+                  rng: np.random.Generator, max_sweeps: int = MAX_SWEEPS,
+                  channels: np.ndarray | None = None, sigma: np.ndarray | None = None
+                  ) -> tuple[np.ndarray, int, int]:
+    """Gilks and Berzuini's move after a resample: Metropolis-Hastings sweeps over the
+    resampled rows (equal weights) targeting ``before(L) x p(y_step | L)``, the belief
+    before the step as its kernel density times the step's likelihood, the step re-simulated
+    for each proposal. Each row, each sweep, takes one of three proposals, chosen by a coin
+    independent of the row (so the mixture keeps the target invariant): an independence
+    draw from `before` (accepted with the likelihood ratio alone: a jump anywhere the
+    belief held mass); an independence draw from the ``LinearisedProposal`` (where the
+    reading says L is, when `channels` and `sigma` name the weighed channels); or a
+    reflected random walk of h x the rows' std (accepted with the target's ratio).
+    `max_sweeps` sweeps. (rows, accepted proposals, sweeps)."""
+    rows = np.asarray(rows, dtype=np.float64).copy()
+    dims = np.asarray(dims, dtype=np.int64)
+    n, k = rows.shape[0], dims.size
+    if n < 2 or k == 0 or max_sweeps <= 0:
+        return rows, 0, 0
+    lo, hi = low[dims], high[dims]
+    ll, meas = _simulated(step, rows, simulate, step_log_likelihood)
+    lp = before.log_density(rows[:, dims])
+    guided = channels is not None and sigma is not None and np.asarray(channels).size > 0
+    accepted = sweeps = 0
+    while sweeps < max_sweeps:
+        cols = rows[:, dims]
+        lin = (LinearisedProposal.fit(cols, meas[:, channels], step.measurements[channels], sigma, before)
+               if guided else None)
+        scale = np.maximum(rpf_bandwidth(n, k) * cols.std(axis=0), before.bandwidth * 1e-3)
+        independent = rng.random(n) < PRIOR_SHARE
+        walk = reflect_into(cols + scale * rng.standard_normal((n, k)), lo, hi)
+        jump = _independence_draw(before, lin, n, rng)
+        pick = np.where(independent[:, None], jump, walk)
+        inside = np.all((pick >= lo) & (pick <= hi), axis=1)      # outside: target 0, rejected
+        proposed = rows.copy()
+        proposed[:, dims] = np.clip(pick, lo, hi)
+        ll_p, meas_p = _simulated(step, proposed, simulate, step_log_likelihood)
+        lp_p = before.log_density(proposed[:, dims])
+        log_ratio = (ll_p + lp_p) - (ll + lp)
+        # an independence proposal's correction q(L) / q(L'); the walk is symmetric
+        log_ratio = np.where(independent, log_ratio + _independence_log_density(before, lin, cols)
+                             - _independence_log_density(before, lin, pick), log_ratio)
+        accept = inside & (np.log(rng.random(n)) < log_ratio)
+        rows[accept], ll[accept], lp[accept], meas[accept] = (proposed[accept], ll_p[accept],
+                                                               lp_p[accept], meas_p[accept])
+        accepted += int(accept.sum())
+        sweeps += 1
+    return rows, accepted, sweeps
+
+
+def _independence_draw(before: KernelDensity, lin: LinearisedProposal | None, m: int,
+                       rng: np.random.Generator) -> np.ndarray:
+    """`m` draws of the independence proposal: the belief before, or half of it and half the
+    linearised proposal (a defensive mixture, Hesterberg 1995: the belief's half keeps the
+    proposal's tails as heavy as the target's, so a row the linearisation misses can still
+    leave; a light-tailed proposal alone strands every row where it puts no mass)."""
+    out = before.draw(m, rng)
+    if lin is not None:
+        aimed = rng.random(m) < 0.5
+        out = np.where(aimed[:, None], lin.draw(m, rng), out)
+    return out
+
+
+def _independence_log_density(before: KernelDensity, lin: LinearisedProposal | None,
+                              x: np.ndarray) -> np.ndarray:
+    if lin is None:
+        return before.log_density(x)
+    return np.logaddexp(before.log_density(x), lin.log_density(x)) - math.log(2.0)
