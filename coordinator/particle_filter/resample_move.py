@@ -262,12 +262,13 @@ def resample_move(rows: np.ndarray, dims: np.ndarray, low: np.ndarray, high: np.
     """Gilks and Berzuini's move after a resample: Metropolis-Hastings sweeps over the
     resampled rows (equal weights) targeting ``before(L) x p(y_step | L)``, the belief
     before the step as its kernel density times the step's likelihood, the step re-simulated
-    for each proposal. Each row, each sweep, takes one of three proposals, chosen by a coin
-    independent of the row (so the mixture keeps the target invariant): an independence
-    draw from `before` (accepted with the likelihood ratio alone: a jump anywhere the
-    belief held mass); an independence draw from the ``LinearisedProposal`` (where the
-    reading says L is, when `channels` and `sigma` name the weighed channels); or a
-    reflected random walk of h x the rows' std (accepted with the target's ratio).
+    for each proposal. Each row, each sweep, takes one of two proposals, chosen by a coin
+    independent of the row (so the mixture keeps the target invariant): a reflected random
+    walk of h x the rows' std (accepted with the target's ratio), or an independence draw
+    (accepted with pi(L') q(L) / (pi(L) q(L'))) from `before`, or, when `channels` and
+    `sigma` name the weighed channels, from the defensive mixture of `before` and the
+    ``LinearisedProposal`` (where the reading says L is). The linearised proposal is
+    refitted to the population before each sweep, as population-based SMC proposals are.
     `max_sweeps` sweeps. (rows, accepted proposals, sweeps)."""
     rows = np.asarray(rows, dtype=np.float64).copy()
     dims = np.asarray(dims, dtype=np.int64)
