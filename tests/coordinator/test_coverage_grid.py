@@ -48,6 +48,9 @@ def test_posteriors_cover_the_truth_across_a_small_grid():
     assert max(z[-1] for z in zs) < 4.0, zs
     # ... and the posterior learned: a posterior as wide as the prior covers every truth
     # (issue 37: this test passed one). Two episodes pin the size to a few per cent of the
-    # prior's std and the density, even through the 3.5 N wrist, to under half of it.
+    # prior's std, and the density read by the precise 0.1 N sensor to under half of it.
+    # (Not through the 3.5 N wrist: measured over seeds 1-4 it ends at 0.36-0.97 of the
+    # prior's std after two episodes; the 0.11 that seed 1 once gave was the collapse the
+    # move after resampling removed, 2657 +- 86 kg/m^3 for a truth of 2200.)
     assert max(s[-1] for s in sharp if s[2] == "size") < 0.15, sharp
-    assert max(s[-1] for s in sharp) < 0.5, sharp
+    assert max(s[-1] for s in sharp if s[2] == "density" and s[1] == 0.050) < 0.5, sharp
