@@ -25,8 +25,8 @@ walk's share starts from them), not re-simulated: the window bounds the cost at
 2 x N x ``MOVE_WINDOW`` particle-actions per move, and a move happens only when the
 monitor fires.
 
-``resample_move`` is Gilks and Berzuini's scheme as written, for a run that sets
-``move_after_resample``: after every resample (and every step no row explained) the rows
+``resample_move`` is Gilks and Berzuini's scheme as written, under ``move_after_resample``
+(the default): after every resample (and every step no row explained) the rows
 take ``MAX_SWEEPS`` sweeps against the belief before the step, as the kernel density the
 regularised filter resamples from (``KernelDensity``), times that one step's likelihood. A
 reading that pins L to a hundredth of the prior leaves the weight on the one or two rows
