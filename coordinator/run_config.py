@@ -157,11 +157,10 @@ class RunConfig(BaseModel):
     # resample-move (issue 37): MAX_SWEEPS Metropolis-Hastings sweeps over the rows against
     # the belief before the step (its kernel density) times the step's likelihood, for a
     # step sharper than the particles' spacing (docs/LOOP.md, "Resample-move after a sharp
-    # step"). On by default: without it a resample that keeps one or two rows collapses the
-    # properties the step did not inform (a density 2657 +- 86 kg/m^3 for a truth of 2200
-    # through a 3.5 N wrist, z 5.3), and a reading beyond every row's outlier floor moves
-    # nothing (the slide at 16 particles: 3 of 16 runs learned nothing).
-    move_after_resample: bool = True
+    # step"). Off by default: it fixes a collapse a resample leaves (a density 2657 +- 86
+    # kg/m^3 for 2200 through a 3.5 N wrist, z 5.3) and the slide at 16 particles, but on
+    # by default it made 80 plain openings over-confident (mean z^2 6-13 over 30 truths).
+    move_after_resample: bool = False
     # Disjoint ranges keep the long-term average the slower one for any pair the schema
     # allows (a cross-field check would refuse schema-valid requests).
     lock_in_slow: float = Field(0.05, gt=0, lt=0.2)

@@ -12,8 +12,8 @@ belief once the particle worlds have replayed it.
    (``Reweighting.resample``);
 4. **move**: one Metropolis-Hastings step per row against the window if the lock-in
    monitor or the innovation bias test asked for one (``resample_move.mh_move``); else,
-   with ``move_after_resample`` (the default), after a resample or a step no row
-   explained, Gilks and Berzuini's resample-move:
+   with ``move_after_resample`` (off by default: docs/LOOP.md), after a resample or a
+   step no row explained, Gilks and Berzuini's resample-move:
    sweeps against the belief before the step times the step's likelihood
    (``resample_move.resample_move``), so that a step sharper than the particles' spacing
    leaves a set that represents the posterior, not the one or two rows that happened to
