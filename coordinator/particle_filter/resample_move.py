@@ -64,7 +64,7 @@ PRIOR_SHARE = 0.5
 # is flat for all of them, every proposal there is accepted, and that rule stopped after one
 # sweep with nothing found). Swept on a synthetic channel 10x sharper than the particles'
 # spacing: 4 sweeps bring every run within 2x the exact posterior's std, 8 to a median of
-# 1.03x (docs/LOOP.md, "Resample-move after a sharp step"). A move costs (1 + MAX_SWEEPS) x
+# 0.99x (docs/LOOP.md, "Resample-move after a sharp step"). A move costs (1 + MAX_SWEEPS) x
 # N particle-actions where a step costs N.
 MAX_SWEEPS = 8
 
