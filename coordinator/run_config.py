@@ -142,6 +142,12 @@ class RunConfig(BaseModel):
     # mean, so resampling keeps the posterior's mean and variance; "rpf": the same kernel
     # without shrinkage (variance x (1 + h^2) per resample); "jitter": the fixed jitter.
     resample_kernel: Literal["liu_west", "rpf", "jitter"] = "liu_west"
+    # The kernel's bandwidth h = (4 / (count (d + 2)))^(1 / (d + 4)): "n" the particle count
+    # (every run so far), "ess" the effective sample size of the weights being resampled, the
+    # count of points a weighted set holds (wider when few rows survive). Measured, "ess"
+    # removes the coverage grid's density collapse and keeps 80 openings calibrated; off by
+    # default until the whole suite has run with it (docs/LOOP.md).
+    kernel_bandwidth: Literal["n", "ess"] = "n"
     # With the sizes variation (one entry of L per block): weights per block, an action's
     # update going to the block it names (coordinator/particle_filter/block_weights.py); with "rpf" only
     # (the fixed jitter keeps one weight per particle: a schema-valid request is never

@@ -275,7 +275,10 @@ class Reweighting:
         return resampled or injected > 0, injected
 
     def _resample_group(self, groups: GroupWeights, g: int, belief: Belief, rng: np.random.Generator) -> None:
-        h = rpf_bandwidth(belief.n, groups.groups[g].size)
+        # Musso's bandwidth is for a sample of equally weighted points; a weighted set holds
+        # ESS of them, so kernel_bandwidth "ess" takes the count from the ESS (docs/LOOP.md).
+        count = belief.n if self.config.kernel_bandwidth == "n" else max(int(round(groups.ess(g))), 1)
+        h = rpf_bandwidth(count, groups.groups[g].size)
         groups.resample(g, belief, rng, h, self.config.jitter_floor, shrink=self.shrink)
 
     def resample_to(self, belief: Belief, n: int, rng: np.random.Generator) -> None:
