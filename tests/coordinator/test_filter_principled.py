@@ -123,6 +123,21 @@ def test_a_confidently_wrong_belief_moves_to_the_readings(start):
         assert abs(mean - 0.040) < 0.0015 and abs(mean - 0.040) < 3 * std + 0.0005, (seed, mean, std)
 
 
+def _openings(n: int, k: int, exact: float, **kw) -> tuple[np.ndarray, list[float]]:
+    """`k` openings with the sensor's noise at 30 truths across the prior: each run's z and
+    its std over the exact posterior's."""
+    z, sharp = [], []
+    for seed in range(30):
+        s = _session(particles=n, seed=seed, **kw)
+        rng = np.random.default_rng(seed + 100)
+        truth = 0.035 + 0.020 * rng.random()
+        _drive(s, truth, k, rng)
+        mean, std = float(s.belief.mean()[0]), float(s.belief.std()[0])
+        z.append((mean - truth) / std)
+        sharp.append(std / exact)
+    return np.array(z), sharp
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("n", [8, 16])
 def test_the_posterior_is_calibrated_against_the_exact_one(n):
@@ -135,16 +150,7 @@ def test_the_posterior_is_calibrated_against_the_exact_one(n):
     k = 80
     exact = SIGMA / math.sqrt(k)
     for kw, calibrated in (({}, True), (PRE_ISSUE_37_FILTER, False)):
-        z, sharp = [], []
-        for seed in range(30):
-            s = _session(particles=n, seed=seed, **kw)
-            rng = np.random.default_rng(seed + 100)
-            truth = 0.035 + 0.020 * rng.random()
-            _drive(s, truth, k, rng)
-            mean, std = float(s.belief.mean()[0]), float(s.belief.std()[0])
-            z.append((mean - truth) / std)
-            sharp.append(std / exact)
-        z = np.array(z)
+        z, sharp = _openings(n, k, exact, **kw)
         ok = (abs(np.median(sharp) - 1.0) < 0.25 and 0.3 <= np.mean(z ** 2) <= 2.5
               and np.sum(np.abs(z) <= 2) >= 26)
         assert ok == calibrated, (kw, np.median(sharp), np.mean(z ** 2), np.round(z, 1))
@@ -328,15 +334,6 @@ def test_a_kernel_from_the_ess_keeps_the_openings_calibrated():
     k = 80
     exact = SIGMA / math.sqrt(k)
     for n in (8, 16):
-        z, sharp = [], []
-        for seed in range(30):
-            s = _session(particles=n, seed=seed, kernel_bandwidth="ess")
-            rng = np.random.default_rng(seed + 100)
-            truth = 0.035 + 0.020 * rng.random()
-            _drive(s, truth, k, rng)
-            mean, std = float(s.belief.mean()[0]), float(s.belief.std()[0])
-            z.append((mean - truth) / std)
-            sharp.append(std / exact)
-        z = np.array(z)
+        z, sharp = _openings(n, k, exact, kernel_bandwidth="ess")
         assert (abs(np.median(sharp) - 1.0) < 0.25 and 0.3 <= np.mean(z ** 2) <= 2.5
                 and np.sum(np.abs(z) <= 2) >= 26), (n, np.median(sharp), np.mean(z ** 2))
