@@ -145,9 +145,9 @@ class RunConfig(BaseModel):
     # The kernel's bandwidth h = (4 / (count (d + 2)))^(1 / (d + 4)): "n" the particle count
     # (every run so far), "ess" the effective sample size of the weights being resampled, the
     # count of points a weighted set holds (wider when few rows survive). Measured, "ess"
-    # removes the coverage grid's density collapse and keeps 80 openings calibrated; off by
-    # default until the whole suite has run with it (docs/LOOP.md).
-    kernel_bandwidth: Literal["n", "ess"] = "n"
+    # removes the coverage grid's density collapse and keeps 80 openings calibrated
+    # (docs/LOOP.md); stored configs without the field keep "n".
+    kernel_bandwidth: Literal["n", "ess"] = "ess"
     # With the sizes variation (one entry of L per block): weights per block, an action's
     # update going to the block it names (coordinator/particle_filter/block_weights.py); with "rpf" only
     # (the fixed jitter keeps one weight per particle: a schema-valid request is never
@@ -380,7 +380,8 @@ PRE_SENSOR_NOISE = {"sensor_noise": 0.0, "sensor_bias": 0.0, "sensor_tails": "ga
 # pose): `tmoc run --config` with these reproduces it, and the benchmarks' "before".
 PRE_ISSUE_37_FILTER = {"ess_keep": 0.5, "resample_kernel": "rpf", "jitter_floor": 0.02,
                        "model_error": "online", "recovery": "prior", "pose_rule": "mode",
-                       "perception_nodes": 1, "pose_alternatives": False, "move_after_resample": False}
+                       "perception_nodes": 1, "pose_alternatives": False, "move_after_resample": False,
+                       "kernel_bandwidth": "n"}
 
 PRE_ISSUE_24_FILTER = {"outlier_rate": 0.0, "model_error": "none", "ess_keep": 0.0,
                        "resample_kernel": "jitter", "block_weights": False, "lock_in": False}
@@ -401,8 +402,9 @@ def stored_run_config(fields: dict) -> RunConfig:
     fields.setdefault("sim_discount", "none")
     # Before issue 37's filter: the lock-in monitor redrew from the prior.
     fields.setdefault("recovery", "prior")
-    # Before the move after resampling.
+    # Before the move after resampling, and the kernel's bandwidth from the ESS.
     fields.setdefault("move_after_resample", False)
+    fields.setdefault("kernel_bandwidth", "n")
     # Before Y's alternatives: Y's pose alone.
     fields.setdefault("pose_alternatives", False)
     # Before issue 24's filter: the plain Gaussian, sensor sigma, fixed jitter, no lock-in.

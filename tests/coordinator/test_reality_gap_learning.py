@@ -25,7 +25,10 @@ def test_a_reality_only_failure_is_learned_within_an_episode():
     assert all(max(p) <= 2 for p in second["plans"]) and not second["failures"], second
     assert second["delivered"] == 4
     T = result["summary"]["transition"]
-    assert T["stack"][2] < 0.5 and min(T["stack"][:2]) > 0.999, T["stack"]
+    # The gap stands out: a real stack onto 0 or 1 blocks can still fail by chance in the
+    # noisy reality (one of five onto 1 at this seed with the kernel from the ESS), so the
+    # contexts below keep a high T, not exactly 1.
+    assert T["stack"][2] < 0.5 and min(T["stack"][:2]) > 0.8, T["stack"]
 
 
 def test_context_failure_parses_and_applies():
