@@ -21,7 +21,7 @@ from coordinator.particle_filter.model_error import ModelError
 from coordinator.loop.real_pose import choose_pose, pose_candidates
 from coordinator.particle_filter.rejuvenation import regularise
 from coordinator.particle_filter.resample_move import KernelDensity, RealStep, mh_move, resample_move
-from coordinator.run_config import PRE_ISSUE_37_FILTER, RunConfig
+from coordinator.run_config import PRE_ISSUE_37_FILTER, RunConfig, stored_run_config
 from coordinator.loop.session import Session
 
 N = 16
@@ -337,3 +337,12 @@ def test_a_kernel_from_the_ess_keeps_the_openings_calibrated():
         z, sharp = _openings(n, k, exact, kernel_bandwidth="ess")
         assert (abs(np.median(sharp) - 1.0) < 0.25 and 0.3 <= np.mean(z ** 2) <= 2.5
                 and np.sum(np.abs(z) <= 2) >= 26), (n, np.median(sharp), np.mean(z ** 2))
+
+
+def test_stored_configs_keep_the_counts_bandwidth():
+    """The default is the ESS's bandwidth; a dump from before the field ran with the count's,
+    and the pre-issue-37 filter names it."""
+    assert RunConfig().kernel_bandwidth == "ess"
+    assert stored_run_config({}).kernel_bandwidth == "n"
+    assert stored_run_config({"kernel_bandwidth": "ess"}).kernel_bandwidth == "ess"
+    assert PRE_ISSUE_37_FILTER["kernel_bandwidth"] == "n"
