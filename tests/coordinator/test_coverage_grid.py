@@ -58,4 +58,3 @@ def test_posteriors_cover_the_truth_across_a_small_grid():
     # Intel Xeon (2657 +- 86 kg/m^3 for 2200, 0.11 of the prior's std, z 5.3); the
     # bandwidth from the ESS (the default) ended at 1828 +- 464 (docs/LOOP.md).
     assert min(s[-1] for s in sharp if s[2] == "density" and s[1] == 0.038) >= 0.2, sharp
-
