@@ -159,6 +159,12 @@ class RunConfig(BaseModel):
     # Metropolis-Hastings against the likelihood of the last real steps re-simulated;
     # "prior": rows redrawn from the prior at uniform weight (issue 24).
     recovery: Literal["mh_move", "prior"] = "mh_move"
+    # The move's Metropolis-Hastings sweeps while its window holds every real step since the
+    # prior (the run's first MOVE_WINDOW steps), where its target is the exact posterior:
+    # one sweep left the large end's first grasps failing six times in a row (docs/LOOP.md,
+    # "The first window's move"). Past that window the move takes one. Stored configs
+    # without the field keep 1.
+    first_window_sweeps: int = Field(8, ge=1, le=32)
     # After every resample, and after a step no row explained, Gilks and Berzuini's
     # resample-move (issue 37): MAX_SWEEPS Metropolis-Hastings sweeps over the rows against
     # the belief before the step (its kernel density) times the step's likelihood, for a
@@ -381,7 +387,7 @@ PRE_SENSOR_NOISE = {"sensor_noise": 0.0, "sensor_bias": 0.0, "sensor_tails": "ga
 PRE_ISSUE_37_FILTER = {"ess_keep": 0.5, "resample_kernel": "rpf", "jitter_floor": 0.02,
                        "model_error": "online", "recovery": "prior", "pose_rule": "mode",
                        "perception_nodes": 1, "pose_alternatives": False, "move_after_resample": False,
-                       "kernel_bandwidth": "n"}
+                       "kernel_bandwidth": "n", "first_window_sweeps": 1}
 
 PRE_ISSUE_24_FILTER = {"outlier_rate": 0.0, "model_error": "none", "ess_keep": 0.0,
                        "resample_kernel": "jitter", "block_weights": False, "lock_in": False}
@@ -405,6 +411,8 @@ def stored_run_config(fields: dict) -> RunConfig:
     # Before the move after resampling, and the kernel's bandwidth from the ESS.
     fields.setdefault("move_after_resample", False)
     fields.setdefault("kernel_bandwidth", "n")
+    # Before the first window's move ran to the exact posterior: one sweep.
+    fields.setdefault("first_window_sweeps", 1)
     # Before Y's alternatives: Y's pose alone.
     fields.setdefault("pose_alternatives", False)
     # Before issue 24's filter: the plain Gaussian, sensor sigma, fixed jitter, no lock-in.

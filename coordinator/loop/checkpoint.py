@@ -47,6 +47,8 @@ def restore_session(cls, data: dict, shard_pool=None):
     session = cls(config, shard_pool)
     if data["belief"] is not None:
         session.belief = Belief.from_dict(data["belief"])
+        # a belief that has absorbed episodes is no longer the prior (the move's window)
+        session.filter.before_window = sum(int(e.get("actions", 1)) for e in data["episodes"])
     session.reweighting.load(data.get("reweighting"), session.dims)     # absent before issue 24
     if session.bandit is not None:                                        # absent before issue 37
         session.bandit = GroundingBandit.from_dict(data.get("bandit"), session.low, session.high)

@@ -11,7 +11,8 @@ belief once the particle worlds have replayed it.
 3. **resample** with the Liu-West kernel where the effective sample size asks for it
    (``Reweighting.resample``);
 4. **move**: one Metropolis-Hastings step per row against the window if the lock-in
-   monitor or the innovation bias test asked for one (``resample_move.mh_move``); else,
+   monitor or the innovation bias test asked for one (``resample_move.mh_move``;
+   ``first_window_sweeps`` while the window reaches back to the prior); else,
    with ``move_after_resample`` (off by default: docs/LOOP.md), after a resample or a
    step no row explained, Gilks and Berzuini's resample-move:
    sweeps against the belief before the step times the step's likelihood
@@ -77,9 +78,19 @@ class ParticleFilter:
         # The episode's latest real steps (the move's window); not checkpointed: emptied at
         # each episode's start, so a resumed run matches an uninterrupted one.
         self.recent: list[RealStep] = []
+        # Real steps the belief absorbed before the window's first: 0 while the window
+        # reaches back to the prior, where the move's target is the exact posterior.
+        self.before_window = 0
 
     def start_episode(self) -> None:
+        self.before_window += len(self.recent)
         self.recent = []
+
+    @property
+    def window_from_prior(self) -> bool:
+        """The move's window holds every real step since the prior (the run's first
+        ``MOVE_WINDOW``): uniform prior times its likelihood is then the exact posterior."""
+        return self.before_window == 0
 
     @property
     def frozen(self) -> bool:
@@ -103,6 +114,7 @@ class ParticleFilter:
         before = self._density_before(step.action)
         weighed = rw.weigh(b, step.action, symbolic_ll, step.measurements, simulated_measurements, nodes)
         self.recent.append(step)
+        self.before_window += max(len(self.recent) - MOVE_WINDOW, 0)
         del self.recent[:-MOVE_WINDOW]
         resampled, injected = rw.resample(b, rng, step.action, rejuvenate=not self.frozen)
         moved, spent = self._move(rng, simulate, symbolic)
@@ -161,8 +173,13 @@ class ParticleFilter:
         scale = np.maximum(rpf_bandwidth(b.n, dims.size) * b.std()[dims],
                            max(self.config.jitter_floor, 1e-6) * width[dims])
         counted, spent = self._counted(simulate)
+        # Where the target is the exact posterior the chain runs first_window_sweeps sweeps
+        # (towards it: rows stranded by a run of failures reach the region the failures
+        # leave); past the run's first window older evidence lives only in where the rows
+        # are, so one.
+        sweeps = self.config.first_window_sweeps if self.window_from_prior else 1
         rows, moved = mh_move(b.particles, dims, b.low, b.high, scale, self.recent, counted,
-                              self._step_loglik(symbolic), rng)
+                              self._step_loglik(symbolic), rng, sweeps=sweeps)
         b.particles = rows
         return moved, spent[0]
 

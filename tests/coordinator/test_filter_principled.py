@@ -181,6 +181,76 @@ def test_the_move_is_metropolis_hastings_against_the_window():
     assert np.array_equal(again, moved)                                # seeded: the same moves
 
 
+def _window_grasp_world(start, rows, action, trajectory, start_time) -> dict:
+    """A grasp whose believed size is trajectory[0, 0]: the container's window (above)."""
+    ok = _grasp_success(float(trajectory[0, 0]), np.asarray(rows)[:, 0])
+    return {"states": [frozenset({"held"}) if o else frozenset() for o in ok],
+            "measurements": np.full((len(rows), 17), np.nan)}
+
+
+def _failed_grasp(believed: float) -> RealStep:
+    traj = np.array([[believed, 0.0, 0.0, 0.0, 0.0, 0.0]])
+    return RealStep(np.zeros(1), "pickup(r,b1,init)", traj, 0.0, frozenset({"held"}), frozenset(),
+                    np.full(17, np.nan))
+
+
+def _symbolic_ll(st: RealStep, res: dict) -> np.ndarray:
+    hit = np.array([s == st.observed for s in res["states"]])
+    return np.where(hit, math.log(0.95), math.log(0.05))
+
+
+def test_the_first_window_move_reaches_the_region_a_run_of_failures_leaves():
+    """The first grasps of a 57.9 mm run (the large end's loop): a failure at 51.9 mm (the
+    truth's region, by chance) left every row in 30-41 mm, then two failures there that every
+    row predicted as successes. The window's target is then the exact posterior (uniform
+    prior times three steps): 98 % of it lies outside 30-41 mm. One sweep moves only the rows
+    whose one proposal lands there (about a third); MAX_SWEEPS sweeps, run while the window
+    reaches back to the prior (`first_window_sweeps`, 8 = MAX_SWEEPS), bring the rows to the
+    exact posterior's share."""
+    from coordinator.particle_filter.resample_move import MAX_SWEEPS
+    steps = [_failed_grasp(0.0519), _failed_grasp(0.0341), _failed_grasp(0.0341)]
+    grid = np.linspace(0.030, 0.060, 3001)[:, None]
+    ll = sum(_symbolic_ll(st, _window_grasp_world(None, grid, st.action, st.trajectory, 0.0)) for st in steps)
+    post = np.exp(ll - ll.max())
+    exact = float(post[grid[:, 0] > 0.041].sum() / post.sum())
+    share = {}
+    for sweeps in (1, MAX_SWEEPS):
+        out = []
+        for seed in range(12):
+            rng = np.random.default_rng(seed)
+            rows = (0.030 + 0.011 * rng.random(16))[:, None]
+            moved, _ = mh_move(rows, np.array([0]), np.array([0.030]), np.array([0.060]), np.array([0.0025]),
+                               steps, _window_grasp_world, _symbolic_ll, rng, sweeps=sweeps)
+            out.append(float(np.mean(moved[:, 0] > 0.041)))
+        share[sweeps] = float(np.mean(out))
+    assert exact > 0.95
+    assert share[1] < 0.6 and abs(share[MAX_SWEEPS] - exact) < 0.1, (exact, share)
+
+
+def test_the_window_reaches_back_to_the_prior_only_in_the_first_steps():
+    """The filter runs `first_window_sweeps` only while its window holds every step since the prior:
+    not past the first MOVE_WINDOW steps, not in a later episode, not after a checkpoint."""
+    from coordinator.particle_filter.resample_move import MOVE_WINDOW
+    s = _session()
+    f = s.filter
+    assert f.window_from_prior
+    for _ in range(MOVE_WINDOW):
+        f.recent.append(_failed_grasp(0.045))
+        f.before_window += max(len(f.recent) - MOVE_WINDOW, 0)
+        del f.recent[:-MOVE_WINDOW]
+    assert f.window_from_prior                      # the first MOVE_WINDOW steps: still exact
+    _drive(s, 0.045, 1, np.random.default_rng(0))
+    assert not f.window_from_prior and len(f.recent) == MOVE_WINDOW
+    fresh = _session()
+    _drive(fresh, 0.045, 2, np.random.default_rng(0))
+    fresh.filter.start_episode()
+    assert not fresh.filter.window_from_prior       # episode 2's window starts after the first's
+    data = _session().to_checkpoint()
+    assert Session.from_checkpoint(data).filter.window_from_prior          # the prior, stored
+    data["episodes"] = [{"episode": 0, "actions": 12}]
+    assert not Session.from_checkpoint(data).filter.window_from_prior      # a learned belief
+
+
 # --------------------------------------------------------------------------- per object
 def test_a_stack_updates_every_block_it_depends_on():
     """stack(r,b3,b1) depends on b3 and on b1 beneath it: the update goes to the whole rows
@@ -333,3 +403,13 @@ def test_stored_configs_keep_the_counts_bandwidth():
     assert stored_run_config({}).kernel_bandwidth == "n"
     assert stored_run_config({"kernel_bandwidth": "ess"}).kernel_bandwidth == "ess"
     assert PRE_ISSUE_37_FILTER["kernel_bandwidth"] == "n"
+
+
+def test_stored_configs_keep_the_one_sweep_first_window_move():
+    """The first window's move takes 8 sweeps by default; a dump from before the field, and
+    the pre-issue-37 filter, take one (the move they ran with)."""
+    assert RunConfig().first_window_sweeps == 8
+    assert stored_run_config({}).first_window_sweeps == 1
+    assert PRE_ISSUE_37_FILTER["first_window_sweeps"] == 1
+    s = _session(first_window_sweeps=3)
+    assert s.filter.config.first_window_sweeps == 3
