@@ -162,8 +162,9 @@ class RunConfig(BaseModel):
     # The move's Metropolis-Hastings sweeps while its window holds every real step since the
     # prior (the run's first MOVE_WINDOW steps), where its target is the exact posterior:
     # one sweep left the large end's first grasps failing six times in a row (docs/LOOP.md,
-    # "The first window's move"). Past that window the move takes one. Stored configs
-    # without the field keep 1.
+    # "The first window's move"). Past that window the move takes one. 8 is
+    # resample_move.MAX_SWEEPS, swept for this move too. Stored configs without the field
+    # keep 1. At most 32: a move then re-simulates at most 32 x N x MOVE_WINDOW rows.
     first_window_sweeps: int = Field(8, ge=1, le=32)
     # After every resample, and after a step no row explained, Gilks and Berzuini's
     # resample-move (issue 37): MAX_SWEEPS Metropolis-Hastings sweeps over the rows against

@@ -86,6 +86,13 @@ class ParticleFilter:
         self.before_window += len(self.recent)
         self.recent = []
 
+    def remember(self, step: RealStep) -> None:
+        """Add `step` to the move's window (the episode's last ``MOVE_WINDOW``), counting
+        the steps that leave it."""
+        self.recent.append(step)
+        self.before_window += max(len(self.recent) - MOVE_WINDOW, 0)
+        del self.recent[:-MOVE_WINDOW]
+
     @property
     def window_from_prior(self) -> bool:
         """The move's window holds every real step since the prior (the run's first
@@ -113,9 +120,7 @@ class ParticleFilter:
         n = b.n
         before = self._density_before(step.action)
         weighed = rw.weigh(b, step.action, symbolic_ll, step.measurements, simulated_measurements, nodes)
-        self.recent.append(step)
-        self.before_window += max(len(self.recent) - MOVE_WINDOW, 0)
-        del self.recent[:-MOVE_WINDOW]
+        self.remember(step)
         resampled, injected = rw.resample(b, rng, step.action, rejuvenate=not self.frozen)
         moved, spent = self._move(rng, simulate, symbolic)
         if before is not None and not spent and (resampled or not weighed.explained):

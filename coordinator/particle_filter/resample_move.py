@@ -24,8 +24,9 @@ rejected or stay local). Older evidence is carried by where the rows were (the r
 walk's share starts from them), not re-simulated: the window bounds the cost at
 2 x N x ``MOVE_WINDOW`` particle-actions per move, and a move happens only when the
 monitor fires. While the window still holds every real step since the prior (the run's
-first ``MOVE_WINDOW``) the target is the exact posterior, and the chain takes
-``MAX_SWEEPS`` sweeps towards it (N x ``MOVE_WINDOW`` more particle-actions each): one
+first ``MOVE_WINDOW``) the target is the exact posterior, and the chain takes the run's
+``first_window_sweeps`` (default ``MAX_SWEEPS``) sweeps towards it (N x ``MOVE_WINDOW``
+more particle-actions each): one
 sweep moves only the rows whose one proposal lands where the evidence is, and a run of
 failed first grasps that no row explains otherwise goes on (docs/LOOP.md).
 

@@ -235,9 +235,7 @@ def test_the_window_reaches_back_to_the_prior_only_in_the_first_steps():
     f = s.filter
     assert f.window_from_prior
     for _ in range(MOVE_WINDOW):
-        f.recent.append(_failed_grasp(0.045))
-        f.before_window += max(len(f.recent) - MOVE_WINDOW, 0)
-        del f.recent[:-MOVE_WINDOW]
+        f.remember(_failed_grasp(0.045))
     assert f.window_from_prior                      # the first MOVE_WINDOW steps: still exact
     _drive(s, 0.045, 1, np.random.default_rng(0))
     assert not f.window_from_prior and len(f.recent) == MOVE_WINDOW
