@@ -103,8 +103,10 @@ def _last_observation(last_reply: dict | None) -> dict | None:
 
 
 def curve_points(records: list[dict]) -> list[dict]:
+    """One point per stored episode record; `size_mean`/`size_std` are None where L has no
+    size (the chute's friction, a plugin's properties: read `properties`)."""
     return [{"episode": r["episode"], "utility": r["utility"],
-             "size_mean": r["posterior"]["size_mean"], "size_std": r["posterior"]["size_std"],
+             "size_mean": r["posterior"].get("size_mean"), "size_std": r["posterior"].get("size_std"),
              "actions": r["actions"], "delivered": r["delivered"], "loads": r["loads"],
              "properties": r["posterior"].get("properties")}
             for r in records if "corrupt" not in r]       # a corrupt stored record: no point

@@ -36,6 +36,7 @@ ROWS = [
     row(T1, "pickup, believed = true 45 mm", C, "pickup", 0.045, 20, 1),
     *[row(T1, f"pickup, believed {b * 1000:.1f} mm", C, "pickup", 0.045, 16, 1, believed_size=b)
       for b in (0.0315, 0.03375, 0.05625, 0.0585)],
+    row(T1, "pickup, a 30 mm block believed 50 mm (1.67 x)", C, "pickup", 0.030, 16, 1, believed_size=0.050),
     row(T1, "stack the first 4 blocks, true size", C, "stack", 0.045, 12, 1, load_k=4),
     *[row(T1, f"push with {k} blocks loaded", C, "push", 0.045, 16, 1, load_k=k) for k in (2, 4, 6, 8)],
     *[row(T2, f"stack {k} blocks", C, "stack", 0.054, 10, 0, load_k=k) for k in (2, 4, 6)],
@@ -43,6 +44,7 @@ ROWS = [
     row(T3, "stack 4 blocks", C, "stack", 0.060, 10, 0, load_k=4),
     row(T4, "pickup, believed = true 40 mm", SP, "pickup", 0.040, 16, 0),
     *[row(T4, f"pickup, believed {b * 1000:.0f} mm", SP, "pickup", 0.040, 16, 0, believed_size=b) for b in (0.050, 0.030)],
+    row(T4, "pickup, a 30 mm block believed 50 mm (1.67 x)", SP, "pickup", 0.030, 16, 0, believed_size=0.050),
     row(T4, "stack onto a tower of 4, true size", SP, "stack", 0.040, 16, 0, load_k=4),
     row(T4, "tower of 8 left alone 2 s", SP, "stand", 0.040, 16, 0, load_k=8),
     *[row(T4, f"push a tower of {k}", SP, "push", 0.040, 16, 0, load_k=k) for k in range(1, 9)],

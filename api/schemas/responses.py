@@ -114,8 +114,8 @@ class BeliefView(BaseModel):
 class CurvePoint(BaseModel):
     episode: int
     utility: float
-    size_mean: float
-    size_std: float
+    size_mean: float | None = Field(None, description="L's size (m); null where L has no size: see `properties`")
+    size_std: float | None = None
     actions: int
     delivered: int
     loads: list[int]

@@ -103,7 +103,7 @@ class ShardPool:
     pools for several scenes at once gives each a fraction, so they never starve each other).
 
     In-process (no Ray): one pickup simulated under two beliefs of the blocks' size, the
-    true 45 mm and a too small 34 mm (whose grasp misses):
+    true 45 mm and 60 mm, wider than the fingers open for a 45 mm block (they land on it):
 
     >>> from sim_workers.domains import load
     >>> physics = load("container")
@@ -112,7 +112,7 @@ class ShardPool:
     >>> action = "pickup(r,b3,init)"
     >>> trajectory = physics.action_trajectory(config, action, physics.action_pose(truth, config, action))
     >>> pool = ShardPool("container", n_shards=0)
-    >>> out = pool.simulate(config.to_array(), np.array([[0.045] * 8, [0.034] * 8]), action,
+    >>> out = pool.simulate(config.to_array(), np.array([[0.045] * 8, [0.060] * 8]), action,
     ...                     trajectory, start_time=float(trajectory[3, 0]))
     >>> sorted(out)
     ['configurations', 'measurements', 'nodes', 'reruns', 'states', 'steps']

@@ -18,6 +18,7 @@ BLOCK_OPTION_RANGES: dict[str, tuple[float, float]] = {
     "push_decel": (0.1, 50.0), "push_time_jitter": (0.0, 0.9), "weigh_s": (0.01, 2.0),
     "force_sigma": (1e-3, 100.0), "density": (1.0, 25000.0), "density_low": (1.0, 25000.0),
     "density_high": (1.0, 25000.0), "grip_force": (0.1, 200.0), "base_max_force": (1.0, 2000.0),
+    "grip_depth": (0.0, 0.05), "grip_depth_ratio": (0.0, 0.9),
 }
 
 # The box around the fingertips where a block counts as held (metres).
@@ -38,6 +39,23 @@ def in_hand(spec, config: Configuration, p: np.ndarray) -> bool:
     dz = p[2] - g[2]
     return (abs(local[0]) < spec.finger_half[0] + HAND_X_MARGIN and abs(local[1]) < HAND_HALF_Y
             and HAND_DZ[0] < dz < HAND_DZ[1] and p[2] > HAND_MIN_Z)
+
+
+def grip_depth(spec, size):
+    """How far below a block's believed top Y puts the fingertips, for believed side(s)
+    `size` (a float or an array): ``max(grip_depth, grip_depth_ratio * size)``.
+
+    Why it scales with the size: carried, the block is held by a contact patch as tall as
+    the grip depth d, and the carry's accelerations act at its centre of mass, (s - d) / 2
+    below the patch's centre; the torque that turns it in the fingers grows with that lever
+    arm and the patch resists it in proportion to its length, so what decides a pivot is
+    (s - d) / (2 d). At the prior's smallest block (30 mm) a 10 mm grip gives 1, and no
+    block that size ever pivots; a fixed 10 mm gives 2.4 at 58 mm, where a carried block
+    pivots and stacks of four fail (8 of 8 in the probes). d = s / 3 keeps the ratio at 1
+    for every size (the ratio of 0 keeps the fixed depth of issue 40's report)."""
+    s = np.asarray(size, dtype=np.float64)
+    d = np.maximum(spec.grip_depth, spec.grip_depth_ratio * s)
+    return float(d) if d.ndim == 0 else d
 
 
 def grasp_yaw(quat: np.ndarray) -> float:

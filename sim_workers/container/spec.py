@@ -50,9 +50,11 @@ class ContainerSpec:
     # fingers should stop on its top); at 1/60 s blocks sink into the table at any count.
     solver_iterations: int = 50
     # Y's grasp rules, in terms of the believed size s: pre-grasp opening = open_ratio * s,
-    # fingertips this far below the believed top.
+    # fingertips max(grip_depth, grip_depth_ratio * s) below the believed top
+    # (sim_workers.blocks.hand.grip_depth says why the grip deepens with the size).
     open_ratio: float = 1.15
-    grip_depth: float = 0.010
+    grip_depth: float = 0.010       # the least depth: fingertips this far below the believed top
+    grip_depth_ratio: float = 1.0 / 3.0   # ... or this share of the believed size if deeper
     release_clearance: float = 0.006
     slot_gap: float = 0.003
     approach_height: float = 0.08

@@ -8,7 +8,7 @@ import dataclasses
 import numpy as np
 
 from ..base import PhysicsDomain
-from ..blocks.hand import BLOCK_OPTION_RANGES, grasp_alternatives, pickup_misalignment
+from ..blocks.hand import BLOCK_OPTION_RANGES, grasp_alternatives, pickup_misalignment, grip_depth
 from ..blocks.terms import held_block
 from ..configuration import Configuration, Workspace
 from ..scene import SceneDescription
@@ -227,7 +227,8 @@ class StackAndPushDomain(PhysicsDomain):
         Y grasps it."""
         sp = self.spec
         opening = sp.max_opening if opening is None else min(float(opening), sp.max_opening)
-        return hand_boxes(sp.palm_half, sp.finger_half, sp.palm_offset, opening, held_size, sp.grip_depth)
+        return hand_boxes(sp.palm_half, sp.finger_half, sp.palm_offset, opening, held_size,
+                          grip_depth(sp, held_size))
 
     def obstacles(self, config: Configuration, size) -> list[Box]:
         """Boxes (centre, half extents, rotation) of the rail walls and every block

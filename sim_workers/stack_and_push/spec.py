@@ -67,7 +67,8 @@ class StackAndPushSpec:
     friction_anchor: bool = True    # Bullet's positional friction on the blocks (no creep)
     # Y's rules in terms of the believed size s.
     open_ratio: float = 1.15
-    grip_depth: float = 0.010
+    grip_depth: float = 0.010       # the least depth: fingertips this far below the believed top
+    grip_depth_ratio: float = 1.0 / 3.0   # ... or this share of the believed size if deeper
     release_clearance: float = 0.004
     approach_height: float = 0.08
     carry_height: float = 0.20      # the minimum; stacks go higher (tower top + block + margin)

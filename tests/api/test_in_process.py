@@ -186,3 +186,19 @@ def test_a_corrupt_row_fails_alone(tmp_path):
             assert episode == 0 and json.loads(text) == {"episode": 0, "corrupt": "the stored record is not valid JSON"}
         finally:
             store.close()
+
+
+def test_a_curve_of_a_domain_without_a_size_is_served():
+    """A chute run's episode record (L is a friction): its curve points say the size is
+    null and give L's properties; the response model accepts them (a stored chute episode
+    made GET /v1/tasks/{id}/curve answer 500, a KeyError on `size_mean`)."""
+    from api import views
+    from api.schemas.responses import CurveView
+
+    record = {"episode": 0, "utility": -100.0, "actions": 2, "delivered": 0, "loads": [8, 7],
+              "posterior": {"mean": [0.65], "std": [0.066],
+                            "properties": {"friction": {"mean": 0.65, "std": 0.066, "unit": "1"}}}}
+    points = views.curve_points([record])
+    assert points[0]["size_mean"] is None and points[0]["properties"]["friction"]["mean"] == 0.65
+    view = CurveView(run_id="t_1", agent="tmoc", true_size=None, points=points)
+    assert view.points[0].size_std is None and view.points[0].loads == [8, 7]

@@ -52,14 +52,18 @@ def test_transition_model_learns_that_heavy_loads_fall_and_the_plan_splits():
 
 
 def test_tmp_rl_learns_its_grounding_where_the_prior_mean_grasp_fails():
-    # At 34 mm a grasp grounded at the prior mean (45 mm) fails every time; until issue 37
-    # TMP-RL grounded there and scored about -3900 every episode, so "TMOC beats TMP-RL"
-    # was true by construction. Now it learns its grounding by trial and error (a bandit
-    # per action kind, no model of L): its pickups come to succeed and it improves.
-    result = run(RunConfig(agent="tmp_rl", episodes=3, seed=3, true_size=0.034, max_steps=60))
+    # At 58 mm a grasp grounded at the prior mean (45 mm) fails every time (its fingers,
+    # 51.75 mm apart, land on the block; `tmoc probe --true-size 0.058 --believed-size
+    # 0.045`: 0/10). Until issue 37 TMP-RL grounded there and failed for ever, so "TMOC
+    # beats TMP-RL" was true by construction. Now it learns its grounding by trial and
+    # error (a bandit per action kind, no model of L): its pickups come to succeed and it
+    # improves. (At 34 mm, where this test ran before the grip deepened with the believed
+    # size, the prior-mean grasp now holds.)
+    result = run(RunConfig(agent="tmp_rl", episodes=3, seed=3, true_size=0.058, max_steps=60))
     utilities = [e["utility"] for e in result["episodes"]]
     assert utilities[-1] > utilities[0] + 200, utilities
-    assert result["summary"]["transition"]["pickup"] > 0.5, result["summary"]["transition"]
+    last = result["episodes"][-1]                   # measured: 5 failed pickups in 56 actions
+    assert last["failures"].get("pickup", 0) <= 0.25 * last["actions"], last["failures"]
 
 
 def test_same_seed_same_result_whatever_the_shards_and_after_a_shard_dies():

@@ -5,6 +5,7 @@ import numpy as np
 import pybullet as pb
 import pytest
 
+from sim_workers.blocks.hand import grip_depth
 from coordinator.loop.reality import Observation
 from coordinator.run_config import RunConfig
 from coordinator.loop.session import Session
@@ -176,7 +177,7 @@ def test_a_block_is_an_obstacle_as_it_lies():
 def test_the_gripper_is_checked_as_palm_fingers_and_held_block():
     """The boxes the check moves: the palm, the fingers as far apart as they are, and a
     held 58 mm block, 29 mm out on both sides of the 24 mm fingers, hanging 48 mm below
-    the fingertips (Y grips it 10 mm below its top) and no wider than itself along them."""
+    the fingertips (Y grips it a third of its side, 19.3 mm, below its top) and no wider than itself along them."""
     domain = _session_at(Configuration(np.zeros(5), np.zeros((9, 7)) + [0, 0, 0, 0, 0, 0, 1])).domain
     palm, fingers = domain.gripper_boxes(0.0)
     assert fingers[0][1] == pytest.approx(domain.spec.max_opening / 2 + 2 * domain.spec.finger_half[1] + 0.001)
@@ -184,7 +185,7 @@ def test_the_gripper_is_checked_as_palm_fingers_and_held_block():
     _, closed, block = domain.gripper_boxes(0.058, opening=0.058)
     assert closed[0][1] == pytest.approx(0.029 + 2 * domain.spec.finger_half[1] + 0.001)
     assert block[0][:2] == pytest.approx([0.03, 0.03])
-    assert block[0][2] - block[1] == pytest.approx(0.058 - domain.spec.grip_depth + 0.001)   # its bottom
+    assert block[0][2] - block[1] == pytest.approx(0.058 - grip_depth(domain.spec, 0.058) + 0.001)   # its bottom
 
 
 # -- a fallback's action is replayed from the trajectory's start ------------------------------
@@ -288,7 +289,7 @@ def _container_pile(size: float, columns: tuple[int, ...], held: int) -> Configu
             i += 1
     slot = spec.init_slot(held)
     robot = np.array([slot[0], slot[1], spec.carry_height, 0.0, size])
-    objects[1 + held] = [slot[0], slot[1], spec.carry_height + spec.grip_depth - size / 2, 0, 0, 0, 1]
+    objects[1 + held] = [slot[0], slot[1], spec.carry_height + grip_depth(spec, size) - size / 2, 0, 0, 0, 1]
     return Configuration(robot, objects)
 
 
@@ -297,7 +298,7 @@ def _stack_key_over_column(domain, config: Configuration, size: float, x: float)
     clearance, fingertips grip_depth below the block's top), for a column Y may choose."""
     spec, c = domain.spec, config.objects[0]
     column = [o for o in config.objects[1:] if abs(o[0] - c[0] - x) < size / 2 and o[2] < 0.3 and o[2] > 0]
-    z = spec.floor_top + len(column) * size + spec.release_clearance + size - spec.grip_depth
+    z = spec.floor_top + len(column) * size + spec.release_clearance + size - grip_depth(spec, size)
     return np.array([c[0] + x, c[1], z, 0.0, spec.open_ratio * size])
 
 
@@ -350,7 +351,7 @@ def test_a_held_block_goes_over_a_taller_column_when_the_carry_height_is_too_low
     pre = domain.pre_pose(config, action, key)
     plan = plan_pre_pose_transit(domain, config, pre, session.believed_sizes(), size, seed=lambda: 0)
     assert plan.strategy == "over_the_top", plan
-    assert plan.path[1, 2] > 0.186 + size - domain.spec.grip_depth
+    assert plan.path[1, 2] > 0.186 + size - grip_depth(domain.spec, size)
     assert _touches_scene(domain, config, np.full(8, size), plan.path, held=1 + held, opening=size) == []
 
 

@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from sim_workers.blocks.hand import grip_depth
 from sim_workers.configuration import Configuration, quat_from_yaw, rotate_z
 from sim_workers.container import columns
 from sim_workers.container import state_mapping as sm
@@ -37,7 +38,7 @@ def at_rest(config: Configuration, i: int, key: np.ndarray, s: float) -> Configu
     """`config` with block i resting where a stack at `key` releases it (upright, at the
     tray's yaw, its bottom on the pile Y computed)."""
     objects = config.objects.copy()
-    bottom = key[2] - (s - SPEC.grip_depth) - SPEC.release_clearance
+    bottom = key[2] - (s - grip_depth(SPEC, s)) - SPEC.release_clearance
     objects[1 + i] = [key[0], key[1], bottom + s / 2, *quat_from_yaw(key[3])]
     return Configuration(config.robot, objects)
 
@@ -131,7 +132,7 @@ def test_large_blocks_pile_in_one_column_on_the_centre_line(s):
     config = stacked_by_y(sizes, 3)
     key = sm.action_pose(SPEC, sizes, config, "stack(r,b4,c)")
     np.testing.assert_allclose(key[:2], C, atol=1e-15)
-    assert key[2] == pytest.approx(SPEC.floor_top + 3 * s + SPEC.release_clearance + s - SPEC.grip_depth)
+    assert key[2] == pytest.approx(SPEC.floor_top + 3 * s + SPEC.release_clearance + s - grip_depth(SPEC, s))
     # The vectorised Y makes the same choice, row by row, beside two-column hypotheses.
     rows = np.array([sizes, np.full(N, 0.040), sizes])
     batch = sm.action_poses(SPEC, rows, config, "stack(r,b4,c)")
@@ -149,7 +150,7 @@ def test_small_blocks_still_pile_in_two_columns(s):
         local = rotate_z(key[:2] - np.asarray(C), -CYAW)
         np.testing.assert_allclose(local, [side * lx, 0.0], atol=1e-15)
         below = SPEC.floor_top + level * s                  # the column's top under the block
-        assert key[2] == pytest.approx(below + SPEC.release_clearance + s - SPEC.grip_depth)
+        assert key[2] == pytest.approx(below + SPEC.release_clearance + s - grip_depth(SPEC, s))
 
 
 # -- re-grounding and Y^-1 -----------------------------------------------------------------

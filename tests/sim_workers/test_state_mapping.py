@@ -4,6 +4,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from sim_workers.blocks.hand import grip_depth
 from sim_workers.configuration import Configuration, quat_from_yaw, rotate_z
 from sim_workers.container.spec import ContainerSpec
 from sim_workers.container import state_mapping as sm
@@ -38,7 +39,7 @@ def in_container(k: int, col: int, level: int = 0, c=(0.0, 0.0), cyaw: float = 0
 
 def held_pose(robot) -> tuple:
     """Where a block of size S hangs between the fingers of a gripper at `robot`."""
-    return (robot[0], robot[1], robot[2] - (S / 2 - SPEC.grip_depth), robot[3])
+    return (robot[0], robot[1], robot[2] - (S / 2 - grip_depth(SPEC, S)), robot[3])
 
 
 def atoms(**where) -> frozenset[str]:
@@ -108,7 +109,7 @@ def test_not_held_when_fingers_wide_open_or_block_not_lifted():
     config = with_objects(base(), robot=open_robot, b4=held_pose(open_robot))
     assert sm.symbolic_state(SPEC, config) == atoms()     # b4 within 2 cm of its slot: init
     # Fingers closed on the block but still at the table: a grasp, not yet a pickup.
-    low = [slot[0], slot[1], S - SPEC.grip_depth, 0.0, S]
+    low = [slot[0], slot[1], S - grip_depth(SPEC, S), 0.0, S]
     assert sm.symbolic_state(SPEC, with_objects(base(), robot=low)) == atoms()
 
 
@@ -139,13 +140,14 @@ def test_pickup_pose_scales_with_the_believed_size(yaw, folded):
         sizes[2] = s                                       # only b3's belief matters
         pose = sm.action_pose(SPEC, sizes, config, "pickup(r,b3,init)")
         np.testing.assert_allclose(pose[:2], config.objects[3, :2])
-        assert pose[2] == pytest.approx(s - SPEC.grip_depth)
+        assert pose[2] == pytest.approx(s - grip_depth(SPEC, s))
         assert pose[3] == pytest.approx(folded)
         assert pose[4] == pytest.approx(SPEC.open_ratio * s)
         poses.append(pose)
     poses = np.array(poses)
-    # Linear in s: 15 mm more size, 15 mm higher and 1.15 x 15 mm wider.
-    np.testing.assert_allclose(np.diff(poses[:, 2]), [0.015, 0.015])
+    # Linear in s: 15 mm more size, 10 mm higher (the fingertips at two thirds of the
+    # believed side: the grip deepens with it) and 1.15 x 15 mm wider.
+    np.testing.assert_allclose(np.diff(poses[:, 2]), [0.010, 0.010])
     np.testing.assert_allclose(np.diff(poses[:, 4]), [SPEC.open_ratio * 0.015] * 2)
     # The other blocks' beliefs do not move b3's grasp.
     other = np.full(N, 0.03)
@@ -175,7 +177,7 @@ def test_stack_release_height_grows_with_the_pile():
         x_expected = (1 if col else -1) * (S / 2 + SPEC.slot_gap / 2)
         assert pose[0] == pytest.approx(x_expected) and pose[1] == pytest.approx(0.0)
         assert pose[2] == pytest.approx(SPEC.floor_top + (k // 2) * S + SPEC.release_clearance
-                                        + S - SPEC.grip_depth)
+                                        + S - grip_depth(SPEC, S))
         assert pose[4] == pytest.approx(SPEC.open_ratio * S)
         zs.append(pose[2])
     assert np.all(np.diff(zs) >= 0) and zs[4] - zs[0] == pytest.approx(2 * S)
@@ -185,8 +187,9 @@ def test_stack_height_comes_from_the_believed_sizes_of_the_pile():
     config = _loaded(4)
     small = sm.action_pose(SPEC, np.full(N, 0.040), config, "stack(r,b8,c)")
     large = sm.action_pose(SPEC, np.full(N, 0.048), config, "stack(r,b8,c)")   # still two columns
-    # Two blocks below in the column, plus the held block's own grip depth.
-    assert large[2] - small[2] == pytest.approx(3 * 0.008)
+    # Two blocks below in the column, plus two thirds of the held block (its grip deepens
+    # with it).
+    assert large[2] - small[2] == pytest.approx(2 * 0.008 + 0.008 * 2 / 3)
 
 
 def test_stack_pose_follows_a_moved_and_turned_container():

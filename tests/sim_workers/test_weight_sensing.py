@@ -53,7 +53,9 @@ def test_held_weight_is_nan_after_any_other_action_and_at_rest():
         key = domain.action_pose(props, held, action)
         after = world.execute(domain.action_trajectory(held, action, key), action,
                               start_time=domain.transit_end_time(held, action, key))
-    assert "on(b1,start)" in after.state
+    # Released (where it lands is the stack's business: about 1 rebuilt-world stack in 15
+    # tips a light block in the hand at either grip depth).
+    assert "hand_empty(r)" in after.state
     assert np.isnan(after.measurements[WEIGHT]) and np.isnan(after.measurements[-1])
 
 
