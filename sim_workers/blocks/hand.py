@@ -51,11 +51,17 @@ def grip_depth(spec, size):
     arm and the patch resists it in proportion to its length, so what decides a pivot is
     (s - d) / (2 d). At the prior's smallest block (30 mm) a 10 mm grip gives 1, and no
     block that size ever pivots; a fixed 10 mm gives 2.4 at 58 mm, where a carried block
-    pivots and stacks of four fail (8 of 8 in the probes). d = s / 3 keeps the ratio at 1
-    for every size (the ratio of 0 keeps the fixed depth of issue 40's report)."""
+    pivots and stacks of four fail (0 of 8 held in the probes). d = s / 3 keeps the ratio at
+    1 for every size (the ratio of 0 keeps the fixed depth of issue 40's report)."""
     s = np.asarray(size, dtype=np.float64)
     d = np.maximum(spec.grip_depth, spec.grip_depth_ratio * s)
     return float(d) if d.ndim == 0 else d
+
+
+def grip_height(spec, size):
+    """The fingertips' height above a gripped block's base, for believed side(s) `size`:
+    the size less ``grip_depth`` (Y's grasp, release and held-block poses all stand on it)."""
+    return size - grip_depth(spec, size)
 
 
 def grasp_yaw(quat: np.ndarray) -> float:

@@ -13,7 +13,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..configuration import Configuration, quat_from_yaw, rotate_z, yaw_of
-from ..blocks.hand import grasp_yaw as _grasp_yaw, grip_depth as _grip_depth, in_hand as _in_hand
+from ..blocks.hand import grasp_yaw as _grasp_yaw, grip_height as _grip_height, in_hand as _in_hand
 from ..blocks.terms import block_index, parse_action  # noqa: F401  (used as state_mapping.*)
 from .columns import LEFT, column_of, column_x, side_of, tallest_pile, two_columns
 from .spec import ContainerSpec
@@ -86,7 +86,7 @@ def action_pose(spec: ContainerSpec, sizes: np.ndarray, config: Configuration, a
         i = block_index(spec, args[1])
         p = config.objects[1 + i]
         s = sizes[i]
-        z = max(s - _grip_depth(spec, s), spec.MIN_GRASP_Z)
+        z = max(_grip_height(spec, s), spec.MIN_GRASP_Z)
         return np.array([p[0], p[1], z, _grasp_yaw(p[3:]), spec.open_ratio * s])
     if name == "stack":
         i = block_index(spec, args[1])
@@ -102,7 +102,7 @@ def action_pose(spec: ContainerSpec, sizes: np.ndarray, config: Configuration, a
         s = sizes[i]
         lx = column_x(spec, s, col, two)
         xy = c[:2] + rotate_z(np.array([lx, 0.0]), cyaw)
-        z = heights[col] + spec.release_clearance + (s - _grip_depth(spec, s))
+        z = heights[col] + spec.release_clearance + _grip_height(spec, s)
         return np.array([xy[0], xy[1], z, cyaw, spec.open_ratio * s])
     # push(R, C, L1, L2): behind the container, fingers low, moving towards L2.
     c = config.objects[0]
@@ -126,7 +126,7 @@ def action_poses(spec: ContainerSpec, sizes: np.ndarray, config: Configuration, 
         s = sizes[:, i]
         out = np.empty((n, 5))
         out[:, 0], out[:, 1], out[:, 3] = p[0], p[1], _grasp_yaw(p[3:])
-        out[:, 2] = np.maximum(s - _grip_depth(spec, s), spec.MIN_GRASP_Z)
+        out[:, 2] = np.maximum(_grip_height(spec, s), spec.MIN_GRASP_Z)
         out[:, 4] = spec.open_ratio * s
         return out
     if name == "stack":
@@ -148,7 +148,7 @@ def action_poses(spec: ContainerSpec, sizes: np.ndarray, config: Configuration, 
         out = np.empty((n, 5))
         out[:, 0] = c[0] + (cos * lx - sin * 0.0)
         out[:, 1] = c[1] + (sin * lx + cos * 0.0)
-        out[:, 2] = heights[rows, col] + spec.release_clearance + (s - _grip_depth(spec, s))
+        out[:, 2] = heights[rows, col] + spec.release_clearance + _grip_height(spec, s)
         out[:, 3] = cyaw
         out[:, 4] = spec.open_ratio * s
         return out

@@ -8,7 +8,7 @@ import dataclasses
 import numpy as np
 
 from ..base import PhysicsDomain
-from ..blocks.hand import BLOCK_OPTION_RANGES, grasp_alternatives, pickup_misalignment, grip_depth
+from ..blocks.hand import BLOCK_OPTION_RANGES, grasp_alternatives, grip_depth, pickup_misalignment
 from ..blocks.terms import held_block
 from ..configuration import Configuration, Workspace
 from ..scene import SceneDescription

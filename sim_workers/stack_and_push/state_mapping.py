@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..configuration import Configuration, quat_from_yaw, quat_to_matrix
-from ..blocks.hand import grasp_yaw as _grasp_yaw, grip_depth as _grip_depth, in_hand as _in_hand
+from ..blocks.hand import grasp_yaw as _grasp_yaw, grip_height as _grip_height, in_hand as _in_hand
 from ..blocks.terms import block_index, parse_action  # noqa: F401  (used as state_mapping.*)
 from .spec import StackAndPushSpec
 
@@ -122,7 +122,7 @@ def action_pose(spec: StackAndPushSpec, sizes: np.ndarray, config: Configuration
     if name == "pickup":
         i = block_index(spec, args[1])
         s = sizes[i]
-        z = max(s - _grip_depth(spec, s), 0.003)
+        z = max(_grip_height(spec, s), 0.003)
         return np.array([obj[i, 0], obj[i, 1], z, _grasp_yaw(obj[i, 3:]), spec.open_ratio * s])
     _, chain = block_labels(spec, config)
     if name == "stack":
@@ -138,7 +138,7 @@ def action_pose(spec: StackAndPushSpec, sizes: np.ndarray, config: Configuration
         else:
             xy, yaw = spec.start_xy(), 0.0
         # The release height is the believed tower height: its error grows as h * (s_b - s_t).
-        z = float(sum(sizes[j] for j in chain)) + spec.release_clearance + (s - _grip_depth(spec, s))
+        z = float(sum(sizes[j] for j in chain)) + spec.release_clearance + _grip_height(spec, s)
         return np.array([xy[0], xy[1], z, yaw, spec.open_ratio * s])
     # push(r,tower,start,goal): closed fingers behind the tower's rearmost (believed) face.
     if chain:
@@ -164,7 +164,7 @@ def action_poses(spec: StackAndPushSpec, sizes: np.ndarray, config: Configuratio
         i = block_index(spec, args[1])
         s = sizes[:, i]
         out[:, 0], out[:, 1], out[:, 3] = obj[i, 0], obj[i, 1], _grasp_yaw(obj[i, 3:])
-        out[:, 2] = np.maximum(s - _grip_depth(spec, s), 0.003)
+        out[:, 2] = np.maximum(_grip_height(spec, s), 0.003)
         out[:, 4] = spec.open_ratio * s
         return out
     _, chain = block_labels(spec, config)
@@ -180,7 +180,7 @@ def action_poses(spec: StackAndPushSpec, sizes: np.ndarray, config: Configuratio
         for j in chain:                 # left to right, as Python's sum() in action_pose
             height = height + sizes[:, j]
         out[:, 0], out[:, 1], out[:, 3] = xy[0], xy[1], yaw
-        out[:, 2] = height + spec.release_clearance + (s - _grip_depth(spec, s))
+        out[:, 2] = height + spec.release_clearance + _grip_height(spec, s)
         out[:, 4] = spec.open_ratio * s
         return out
     if chain:
