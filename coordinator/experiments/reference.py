@@ -21,7 +21,8 @@ from typing import Callable, Literal
 import numpy as np
 
 from ..particle_filter.belief import gaussian_log_likelihood, logsumexp
-from ..particle_filter.likelihood import OUTLIER_WIDTH_SIGMAS, robust_log_likelihood
+from ..particle_filter.likelihood import (OUTLIER_WIDTH_SIGMAS, perfect_log_likelihood, readings_given_outcome,
+                                          robust_log_likelihood)
 
 __all__ = ["RefilterError", "entries", "judge", "load_run", "reference_posterior", "score"]
 
@@ -117,8 +118,16 @@ def step_loglik(config, channels: np.ndarray, sigma: np.ndarray, step: dict, res
         return ll
     obs, pred = _array(step["measurements"])[channels], np.asarray(res["measurements"])[:, channels]
     if config.outlier_rate == 0.0:
-        return ll + gaussian_log_likelihood(obs, pred, sigma)
-    return ll + robust_log_likelihood(obs, pred, sigma, config.outlier_rate, OUTLIER_WIDTH_SIGMAS * sigma)
+        meas = gaussian_log_likelihood(obs, pred, sigma)
+        perfect = float(gaussian_log_likelihood(obs, np.where(np.isnan(obs), 0.0, obs)[None, :], sigma)[0])
+    else:
+        width = OUTLIER_WIDTH_SIGMAS * sigma
+        meas = robust_log_likelihood(obs, pred, sigma, config.outlier_rate, width)
+        perfect = perfect_log_likelihood(obs, sigma, config.outlier_rate, width)
+    if config.disagreement_readings == "profile":
+        meas = readings_given_outcome(np.where(agreed, math.log1p(-config.error_rate), math.log(config.error_rate)),
+                                      config.error_rate, meas, perfect)
+    return ll + meas
 
 
 def replay(simulate: SimulateFn, model: dict, steps: list[dict], rows: np.ndarray) -> np.ndarray:

@@ -85,6 +85,7 @@ class ParticleFilter:
     def start_episode(self) -> None:
         self.before_window += len(self.recent)
         self.recent = []
+        self.reweighting.start_episode()
 
     def remember(self, step: RealStep) -> None:
         """Add `step` to the move's window (the episode's last ``MOVE_WINDOW``), counting

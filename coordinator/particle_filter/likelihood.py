@@ -29,6 +29,22 @@ Each update's information is its Kullback-Leibler divergence from the weights be
 informative. ``normalised_evidence`` is how well the belief as a whole predicted an
 observation (1: every particle exactly), what the lock-in monitor
 (``coordinator.particle_filter.rejuvenation``) averages with ``recovery="mh_move"`` (issue 37).
+
+**Readings of a world whose outcome was wrong** (``readings_given_outcome``). An
+observation is an outcome and the readings that follow from it, y = (o, m), and a world
+predicts both: o_i = f(L_i), m_i = g(L_i). The symbolic match says reality departs from a
+right world's outcome with probability eps (``error_rate``). A world whose outcome matched
+scores the readings against its own prediction, p(m | L_i) as above. A world whose outcome
+did not match predicted readings of the other regime (fingers closed on nothing, opening
+0, where the real grasp held and read 60 mm), which the readings then score a second time:
+a failure the worlds do not share cost such rows eps x floor / peak, about x7600 for the
+container's opening, where the declared error rate says x19 (docs/LOOP.md, "Readings of a
+world whose outcome was wrong"). Under the departure, what this world would read had it
+reproduced the outcome is not simulated; the readings are scored at the profile over it,
+the likelihood of an exact prediction (``perfect_log_likelihood``): the departure is
+charged eps once, the most a readings' term can give, and a function of the observation
+alone (no other row, no weight), so a Metropolis-Hastings move's target stays a fixed
+function of L.
 """
 from __future__ import annotations
 
@@ -39,7 +55,7 @@ import numpy as np
 from .belief import observed_and_predicted
 
 __all__ = ["INFORMATIVE_NATS", "OUTLIER_WIDTH_SIGMAS", "robust_log_likelihood",
-           "perfect_log_likelihood", "update_information", "normalised_evidence", "ess_temper"]
+           "perfect_log_likelihood", "readings_given_outcome", "update_information", "normalised_evidence", "ess_temper"]
 
 _LOG_SQRT_2PI = 0.5 * math.log(2.0 * math.pi)
 
@@ -114,6 +130,20 @@ def perfect_log_likelihood(observed, sigma, eps: float = 0.05, width=None) -> fl
     obs = np.asarray(observed, dtype=np.float64).reshape(-1)
     return float(robust_log_likelihood(obs, np.where(np.isnan(obs), 0.0, obs)[None, :],
                                        sigma, eps, width)[0])
+
+
+def readings_given_outcome(symbolic_ll, error_rate: float, readings_ll, readings_perfect: float) -> np.ndarray:
+    """The readings' log-likelihood per row given its world's outcome (module docstring): a
+    row whose symbolic outcome matched (`symbolic_ll` = log(1 - `error_rate`)) keeps its
+    own `readings_ll`; one that did not (log `error_rate`) scores `readings_perfect`, an
+    exact prediction's.
+
+    >>> sym = np.log([0.95, 0.05])
+    >>> readings_given_outcome(sym, 0.05, np.array([4.0, -0.7]), 5.3).tolist()
+    [4.0, 5.3]
+    """
+    agreed = np.asarray(symbolic_ll, dtype=np.float64) >= math.log1p(-error_rate) - 1e-12
+    return np.where(agreed, np.asarray(readings_ll, dtype=np.float64), readings_perfect)
 
 
 def update_information(log_w_before: np.ndarray, log_w_after: np.ndarray) -> float:

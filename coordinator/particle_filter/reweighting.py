@@ -28,7 +28,7 @@ import numpy as np
 
 from .belief import Belief, gaussian_log_likelihood, logsumexp
 from .block_weights import GroupWeights
-from .likelihood import (INFORMATIVE_NATS, OUTLIER_WIDTH_SIGMAS, ess_temper, normalised_evidence,
+from .likelihood import (INFORMATIVE_NATS, OUTLIER_WIDTH_SIGMAS, ess_temper, normalised_evidence, readings_given_outcome,
                          perfect_log_likelihood, robust_log_likelihood, update_information)
 from .model_error import BIAS_Z, ModelError
 from .perception import mixture_log_likelihood
@@ -75,6 +75,11 @@ class Reweighting:
         # monitor fires with recovery "mh_move"; the session runs the move: it holds the
         # particle worlds and the recent real steps).
         self.pending_move: np.ndarray | None = None
+        # Per row, the explained steps whose outcome it mispredicted since the rows were last
+        # renewed (``mismatches``); emptied at each episode's start like the move's window.
+        self.mismatched: np.ndarray | None = None
+        self._rows: np.ndarray | None = None
+        self._impoverished = False
 
     @property
     def regularised(self) -> bool:
@@ -152,6 +157,8 @@ class Reweighting:
         perfect = math.log1p(-self.config.error_rate)
         if self.config.use_measurements and self.channels.size:
             meas_ll, meas_perfect = self._measurement_ll(observed[self.channels], predicted[:, self.channels])
+            if self.config.disagreement_readings == "profile":
+                meas_ll = readings_given_outcome(ll, self.config.error_rate, meas_ll, meas_perfect)
             ll, perfect = ll + meas_ll, perfect + meas_perfect
         return ll, perfect
 
@@ -193,9 +200,31 @@ class Reweighting:
             else:
                 self._biased = False
         self._explained = math.exp(min(float(np.max(ll)) - perfect, 0.0)) >= EXPLAINED
+        self._impoverished = self._mismatches(belief, symbolic_ll)
         alpha = self._update(belief, action, ll)
         kl = update_information(before, belief.log_weights)
         return UpdateOutcome(kl, kl > INFORMATIVE_NATS, self._explained, alpha)
+
+    def _mismatches(self, belief: Belief, symbolic_ll: np.ndarray) -> bool:
+        """Count this step's symbolic mispredictions per row, if some row predicted it, and
+        say whether every row has now mispredicted one since the rows were last renewed:
+        each step explained by some hypothesis, the sequence by none, the signature of a
+        truth between the rows (a cycle of two failing grasp poses, docs/LOOP.md, "Readings
+        of a world whose outcome was wrong")."""
+        if not self.config.mismatch_move:
+            return False
+        if self._rows is None or not np.array_equal(self._rows, belief.particles):
+            self.mismatched = np.zeros(belief.n, dtype=np.int64)      # renewed rows: counted anew
+            self._rows = belief.particles.copy()
+        agreed = np.asarray(symbolic_ll) >= math.log1p(-self.config.error_rate) - 1e-12
+        if not agreed.any():
+            return False            # no row predicted it: the outlier's business (eps), not the set's
+        self.mismatched += ~agreed
+        return bool(np.all(self.mismatched > 0))
+
+    def start_episode(self) -> None:
+        """Forget the mismatch counts (the move's window empties with the episode too)."""
+        self.mismatched, self._rows, self._impoverished = None, None, False
 
     def _update(self, belief: Belief, action: str, ll: np.ndarray) -> float:
         """The (tempered) Bayes step, on the action's group when weights are per group."""
@@ -249,8 +278,11 @@ class Reweighting:
         key, dims = self._lock_in_key(action, belief.dim)
         move = c.recovery == "mh_move"
         share = self.lock_in.observe(key, self._explained, self._evidence if move else None)
-        if move and self._biased:
-            share = max(share, 1.0)      # the innovations' mean test failed: move now
+        if move and (self._biased or self._impoverished):
+            # the innovations' mean test failed, or no row predicted every outcome since
+            # the rows were renewed: move now
+            share = max(share, 1.0)
+            self._impoverished = False
         if share <= 0.0 or dims.size == 0:
             return resampled, 0
         if move:

@@ -250,6 +250,90 @@ def test_the_window_reaches_back_to_the_prior_only_in_the_first_steps():
 
 
 # --------------------------------------------------------------------------- per object
+# --------------------------------------------------------------------------- a mismatched world's readings
+def _rail_pickup(readings: str) -> tuple[Session, np.ndarray, np.ndarray]:
+    """The stack-and-push run that collapsed (57.9 mm, the sweep's run 2, a pickup from the
+    rail): the belief 57.16 +- 0.41 mm, the real grasp held and read 60.5 mm; the worlds of
+    56.5 mm and more failed it in every quadrature node (fingers on nothing, 0 mm), those
+    below held and read about their size plus 4 mm. (rows, log-likelihood per row.)"""
+    s = _session(disagreement_readings=readings)
+    rows = np.linspace(0.0545, 0.0600, N)
+    s.belief.particles[:, 0] = rows
+    s.belief.log_weights = -0.5 * ((rows - 0.05716) / 0.00041) ** 2
+    s.belief.log_weights -= np.logaddexp.reduce(s.belief.log_weights)
+    held = rows < 0.0565
+    pred = np.full((N, 17), np.nan)
+    pred[:, 0] = np.where(held, rows + 0.004, 0.0)
+    obs = np.full(17, np.nan)
+    obs[0] = 0.0605
+    e = s.config.error_rate
+    sym = np.where(held, math.log1p(-e), math.log(e))
+    ll, perfect = s.reweighting.log_likelihood(sym, obs, pred)
+    s.reweighting.weigh(s.belief, "pickup(r,b6,rail)", sym, obs, pred)
+    return s, rows, ll - perfect
+
+
+def test_a_world_whose_outcome_was_wrong_is_charged_the_error_rate_once():
+    """Its opening follows from the outcome it got wrong, so scored against its own
+    prediction (0 mm against 60.5) the failure was charged twice: the worlds the run's later
+    openings pointed to kept 0.2 % of the belief, which collapsed to 56.4 +- 0.05 mm for a
+    57.9 mm truth and never moved again. Scored at the profile they pay the declared
+    odds eps / (1 - eps) against an exact prediction, and keep a third of the belief."""
+    e = 0.05
+    for readings, kept in (("own", lambda k: k < 0.01), ("profile", lambda k: k > 0.3)):
+        s, rows, rel = _rail_pickup(readings)
+        large = rows >= 0.0565
+        share = float(s.belief.weights[large].sum())
+        assert kept(share), (readings, share)
+        if readings == "profile":
+            assert np.allclose(rel[large], math.log(e) - math.log1p(-e))
+            # between the worlds that held, the opening discriminates as before
+            own = _rail_pickup("own")[2]
+            assert np.allclose(rel[~large], own[~large])
+
+
+def _two_pose_world(start, rows, action, trajectory, start_time) -> dict:
+    """Grasps as the seed-91 run's: pose 0 (a believed 34.5 mm) holds blocks up to 38 mm,
+    pose 1 (a believed 55 mm, 10 mm deep) from 46 mm; the pose is the trajectory's first
+    entry. A held block reads its size, a missed one 0."""
+    rows = np.asarray(rows)[:, 0]
+    held = rows <= 0.038 if float(np.asarray(trajectory)[0, 0]) == 0.0 else rows >= 0.046
+    meas = np.full((len(rows), 17), np.nan)
+    meas[:, 0] = np.where(held, rows, 0.0)
+    return {"states": [frozenset({"ok"}) if h else frozenset() for h in held], "measurements": meas,
+            "steps": np.ones(len(rows))}
+
+
+def _grasp_cycle(mismatch_move: bool, cycles: int) -> np.ndarray:
+    """Sixteen rows in 31-37 and 50-57 mm, a 44 mm block, grasps failing at pose 0 and 1 in
+    turn (each predicted by half the rows, so the weights return to where they were and the
+    ESS never falls below N/2): the rows after `cycles` cycles."""
+    s = _session(seed=2, mismatch_move=mismatch_move)
+    s.belief.particles[:, 0] = np.r_[np.linspace(0.031, 0.037, 8), np.linspace(0.050, 0.057, 8)]
+    action, ok, failed = "pickup(r,b1,init)", frozenset({"ok"}), frozenset()
+    obs = np.full(17, np.nan)
+    obs[0] = 0.0
+    for k in range(2 * cycles):
+        traj = np.full((2, 6), float(k % 2))
+        step = RealStep(np.zeros(1), action, traj, 0.0, ok, failed, obs)
+        res = _two_pose_world(None, s.belief.particles, action, traj, 0.0)
+        sym = s._symbolic_loglik(step, failed, res["states"])
+        s.filter.update(step, sym, res["measurements"], s.rng, _two_pose_world, s._symbolic_loglik)
+    return s.belief.particles[:, 0]
+
+
+def test_a_cycle_of_two_failing_grasp_poses_moves_the_rows_between_them():
+    """Each failure is predicted by half the rows, the pair by none: with a failure charged
+    the error rate once (x19) the weights return to where they were every cycle, nothing is
+    resampled and the monitor's averages fall too slowly (the seed-91 loop: 6 failures in a
+    row). The move on "every row mispredicted since the rows were renewed" takes the rows
+    between the poses, where the exact posterior has 99 % of its mass; without it none
+    gets there."""
+    between = lambda rows: float(np.mean((rows > 0.038) & (rows < 0.046)))
+    assert between(_grasp_cycle(False, cycles=2)) == 0.0      # (the monitor fires in the third)
+    assert between(_grasp_cycle(True, cycles=1)) > 0.5
+
+
 def test_a_stack_updates_every_block_it_depends_on():
     """stack(r,b3,b1) depends on b3 and on b1 beneath it: the update goes to the whole rows
     (issue 24 gave it to b3's weights alone, and b1 never learned from its stacks)."""
@@ -413,3 +497,14 @@ def test_stored_configs_keep_the_one_sweep_first_window_move():
     assert PRE_ISSUE_37_FILTER["first_window_sweeps"] == 1
     s = _session(first_window_sweeps=3)
     assert s.filter.config.first_window_sweeps == 3
+
+
+def test_stored_configs_keep_the_readings_rule_and_no_mismatch_move():
+    """A mismatched world's readings at the profile and the mismatch move are the defaults;
+    a dump from before the fields, and the pre-issue-37 filter, keep what they ran with."""
+    assert RunConfig().disagreement_readings == "profile" and RunConfig().mismatch_move
+    old = stored_run_config({})
+    assert old.disagreement_readings == "own" and not old.mismatch_move
+    assert PRE_ISSUE_37_FILTER["disagreement_readings"] == "own" and not PRE_ISSUE_37_FILTER["mismatch_move"]
+    kept = stored_run_config({"disagreement_readings": "profile", "mismatch_move": True})
+    assert kept.disagreement_readings == "profile" and kept.mismatch_move

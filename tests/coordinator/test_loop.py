@@ -41,10 +41,12 @@ def test_transition_model_learns_that_heavy_loads_fall_and_the_plan_splits():
     cfg = RunConfig(agent="tmoc", particles=8, episodes=3, seed=1)
     result = run(cfg)
     T = result["summary"]["transition"]
-    # Some heavy load the robot pushed and saw fall is learned below the light loads'
+    # Some heavy context the robot tried and saw fail is learned below the light ones
     # (which one depends on where the first trip failed: with the trip-priced planner a
-    # failed stack of 8 is replanned before any push of 8; seed 1: a push of 5, T 0.59).
-    assert min(T["push"][2:]) < T["push"][1], T["push"]
+    # failed stack of 8 is replanned before any push of 8; seed 1: stacks onto 4, T 0.44,
+    # and 4 + 4 from the sixth plan on; with the filter before issue 37's readings rule, 14
+    # plans of 8 and then a push of 5 that fell, T 0.59).
+    assert (min(T["push"][2:]) < T["push"][1] or min(T["stack"][2:]) < T["stack"][1]), T
     first_plan = result["episodes"][0]["plans"][0]
     later_plans = [p for e in result["episodes"][1:] for p in e["plans"]]
     assert first_plan == [8]

@@ -53,11 +53,13 @@ def test_the_mixture_is_the_weighted_average_of_the_nodes_likelihoods():
     assert np.allclose(got, [0.05 / 3 + 0.95 * 2 / 3, 0.9])
 
 
-def _failed_zero_clearance_grasp(nodes: int) -> float:
+def _failed_zero_clearance_grasp(nodes: int, readings: str = "profile") -> float:
     """The share of the belief on the worlds of 55 mm and more after the real grasp at
-    57.9 mm open (a believed 50.4 mm) failed, the fingers closing on nothing (0 mm)."""
+    57.9 mm open (a believed 50.4 mm) failed, the fingers closing on nothing (0 mm);
+    `readings`: how a world whose outcome did not match has its opening scored."""
     s = Session(RunConfig(true_size=0.0579, particles=len(SIZES), seed=3, particle_budget="fixed",
-                          perception_nodes=nodes), shard_pool=ShardPool("container", {}, n_shards=0))
+                          perception_nodes=nodes, disagreement_readings=readings),
+                shard_pool=ShardPool("container", {}, n_shards=0))
     config = s.domain.initial_configuration(s.domain.properties({"block_sizes": np.full(8, 0.0579)}))
     pose = s.domain.action_pose(s.props_of(np.full(8, 0.0504)), config, ACTION)
     assert math.isclose(pose[4], 0.0579, abs_tol=1e-4)        # no clearance for the truth
@@ -83,9 +85,14 @@ def _failed_zero_clearance_grasp(nodes: int) -> float:
 
 
 def test_a_failed_grasp_without_clearance_keeps_the_large_worlds():
-    """Fails on the perceived pose alone (perception_nodes=1, before issue 37's term): the
-    large worlds keep about 1e-3 of the belief there, a third or more with the rule."""
-    alone = _failed_zero_clearance_grasp(1)
+    """Fails on the perceived pose alone with the mismatched worlds' openings scored against
+    their own prediction (perception_nodes=1, disagreement_readings "own": the filter
+    before): the large worlds keep about 1e-3 of the belief there. Scored at the profile
+    (the default) the failure costs them the declared error rate once (x19: 0.066 of the
+    belief), and with the rule a third or more."""
+    alone = _failed_zero_clearance_grasp(1, "own")
+    profile = _failed_zero_clearance_grasp(1)
     integrated = _failed_zero_clearance_grasp(3)
     assert alone < 0.01, alone
+    assert 0.03 < profile < 0.2, profile
     assert integrated > 0.2, integrated

@@ -132,6 +132,7 @@ def _sequence(s: Session) -> np.ndarray:
         s.reweighting.weigh(s.belief, "pickup(r,b1,init)", symbolic(s, sizes > 0.035), observed(0.041),
                             predictions(s, sizes))
         s.reweighting.resample(s.belief, s.rng, "pickup(r,b1,init)")
+        s.reweighting.resample_to(s.belief, s.belief.n, s.rng)      # a draw whatever the update did
     return s.belief.particles.copy()
 
 
@@ -165,7 +166,7 @@ def test_an_old_checkpoint_loads_and_keeps_the_filter_it_ran_with():
     data = json.loads(json.dumps(s.to_checkpoint()))
     data.pop("reweighting")
     for key in ("outlier_rate", "model_error", "ess_keep", "resample_kernel", "block_weights", "lock_in",
-                "lock_in_slow", "lock_in_fast"):
+                "lock_in_slow", "lock_in_fast", "disagreement_readings", "mismatch_move"):
         data["config"].pop(key)
     old = Session.from_checkpoint(data)
     assert {k: getattr(old.config, k) for k in PRE_ISSUE_24_FILTER} == PRE_ISSUE_24_FILTER
