@@ -7,7 +7,11 @@
   average likelihood, then a Metropolis-Hastings move against the re-simulated window);
 * an outcome that depends on two blocks updates the whole rows, not the first block;
 * the real pose is the candidate with the highest predicted success;
-* in real physics, the seed-91 grasp loop (24 failed pickups in a row) is gone.
+* in real physics, the seed-91 grasp loop (24 failed pickups in a row) is gone;
+* a world whose outcome was wrong is charged the declared error rate once, not again
+  through the readings that follow from its outcome;
+* a cycle of two failing grasp poses, each predicted by half the rows, moves the rows
+  between them.
 """
 from __future__ import annotations
 
