@@ -170,7 +170,7 @@ class RunConfig(BaseModel):
     # scores them as an exact prediction's, so the departure costs the declared error rate
     # once (coordinator/particle_filter/likelihood.py, readings_given_outcome); "own" against
     # the world's own prediction of the other regime, which charged it a second time
-    # (x7600 for the container's opening where error_rate says x19: a 57.9 mm belief
+    # (about x7000 for the container's opening where error_rate says x19: a 57.9 mm belief
     # collapsed to 56.4 +- 0.05 mm on one rail pickup, docs/LOOP.md). Stored configs
     # without the field keep "own".
     disagreement_readings: Literal["profile", "own"] = "profile"

@@ -37,7 +37,7 @@ right world's outcome with probability eps (``error_rate``). A world whose outco
 scores the readings against its own prediction, p(m | L_i) as above. A world whose outcome
 did not match predicted readings of the other regime (fingers closed on nothing, opening
 0, where the real grasp held and read 60 mm), which the readings then score a second time:
-a failure the worlds do not share cost such rows eps x floor / peak, about x7600 for the
+a failure the worlds do not share cost such rows eps x floor / peak, about x7000 for the
 container's opening, where the declared error rate says x19 (docs/LOOP.md, "Readings of a
 world whose outcome was wrong"). Under the departure, what this world would read had it
 reproduced the outcome is not simulated; the readings are scored at the profile over it,
