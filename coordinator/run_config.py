@@ -173,12 +173,12 @@ class RunConfig(BaseModel):
     # (about x7000 for the container's opening where error_rate says x19: a 57.9 mm belief
     # collapsed to 56.4 +- 0.05 mm on one rail pickup, docs/LOOP.md). Stored configs
     # without the field keep "own".
-    disagreement_readings: Literal["profile", "own"] = "profile"
+    disagreement_readings: Literal["profile", "own"] = "own"
     # With recovery "mh_move": the move also when every row has mispredicted the outcome of
     # a step some row predicted, since the rows were last renewed (within the episode): each
     # step explained by some hypothesis and the sequence by none, the truth between the
     # rows (the seed-91 grasp cycle: docs/LOOP.md). Stored configs without the field: off.
-    mismatch_move: bool = True
+    mismatch_move: bool = False
     # After every resample, and after a step no row explained, Gilks and Berzuini's
     # resample-move (issue 37): MAX_SWEEPS Metropolis-Hastings sweeps over the rows against
     # the belief before the step (its kernel density) times the step's likelihood, for a

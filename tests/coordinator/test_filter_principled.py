@@ -312,7 +312,7 @@ def _grasp_cycle(mismatch_move: bool, cycles: int) -> np.ndarray:
     """Sixteen rows in 31-37 and 50-57 mm, a 44 mm block, grasps failing at pose 0 and 1 in
     turn (each predicted by half the rows, so the weights return to where they were and the
     ESS never falls below N/2): the rows after `cycles` cycles."""
-    s = _session(seed=2, mismatch_move=mismatch_move)
+    s = _session(seed=2, mismatch_move=mismatch_move, disagreement_readings="profile")
     s.belief.particles[:, 0] = np.r_[np.linspace(0.031, 0.037, 8), np.linspace(0.050, 0.057, 8)]
     action, ok, failed = "pickup(r,b1,init)", frozenset({"ok"}), frozenset()
     obs = np.full(17, np.nan)
@@ -506,7 +506,8 @@ def test_stored_configs_keep_the_one_sweep_first_window_move():
 def test_stored_configs_keep_the_readings_rule_and_no_mismatch_move():
     """A mismatched world's readings at the profile and the mismatch move are the defaults;
     a dump from before the fields, and the pre-issue-37 filter, keep what they ran with."""
-    assert RunConfig().disagreement_readings == "profile" and RunConfig().mismatch_move
+    # Opt-in for now: with both, the slide example's learning test ends at 0.51 +- 0.06 for 0.2.
+    assert RunConfig().disagreement_readings == "own" and not RunConfig().mismatch_move
     old = stored_run_config({})
     assert old.disagreement_readings == "own" and not old.mismatch_move
     assert PRE_ISSUE_37_FILTER["disagreement_readings"] == "own" and not PRE_ISSUE_37_FILTER["mismatch_move"]
