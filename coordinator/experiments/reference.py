@@ -125,8 +125,7 @@ def step_loglik(config, channels: np.ndarray, sigma: np.ndarray, step: dict, res
         meas = robust_log_likelihood(obs, pred, sigma, config.outlier_rate, width)
         perfect = perfect_log_likelihood(obs, sigma, config.outlier_rate, width)
     if config.disagreement_readings == "profile":
-        meas = readings_given_outcome(np.where(agreed, math.log1p(-config.error_rate), math.log(config.error_rate)),
-                                      config.error_rate, meas, perfect)
+        meas = readings_given_outcome(agreed, meas, perfect)
     return ll + meas
 
 

@@ -55,7 +55,7 @@ import numpy as np
 from .belief import observed_and_predicted
 
 __all__ = ["INFORMATIVE_NATS", "OUTLIER_WIDTH_SIGMAS", "robust_log_likelihood",
-           "perfect_log_likelihood", "readings_given_outcome", "update_information", "normalised_evidence", "ess_temper"]
+           "perfect_log_likelihood", "matched", "readings_given_outcome", "update_information", "normalised_evidence", "ess_temper"]
 
 _LOG_SQRT_2PI = 0.5 * math.log(2.0 * math.pi)
 
@@ -132,18 +132,21 @@ def perfect_log_likelihood(observed, sigma, eps: float = 0.05, width=None) -> fl
                                        sigma, eps, width)[0])
 
 
-def readings_given_outcome(symbolic_ll, error_rate: float, readings_ll, readings_perfect: float) -> np.ndarray:
-    """The readings' log-likelihood per row given its world's outcome (module docstring): a
-    row whose symbolic outcome matched (`symbolic_ll` = log(1 - `error_rate`)) keeps its
-    own `readings_ll`; one that did not (log `error_rate`) scores `readings_perfect`, an
-    exact prediction's.
+def matched(symbolic_ll, error_rate: float) -> np.ndarray:
+    """Per row, whether its world predicted the observed symbolic outcome (its symbolic
+    log-likelihood is log(1 - `error_rate`), not log `error_rate`)."""
+    return np.asarray(symbolic_ll, dtype=np.float64) >= math.log1p(-error_rate) - 1e-12
 
-    >>> sym = np.log([0.95, 0.05])
-    >>> readings_given_outcome(sym, 0.05, np.array([4.0, -0.7]), 5.3).tolist()
+
+def readings_given_outcome(agreed, readings_ll, readings_perfect: float) -> np.ndarray:
+    """The readings' log-likelihood per row given its world's outcome (module docstring): a
+    row whose world `agreed` with the observed outcome (``matched``) keeps its own
+    `readings_ll`; one that did not scores `readings_perfect`, an exact prediction's.
+
+    >>> readings_given_outcome(np.array([True, False]), np.array([4.0, -0.7]), 5.3).tolist()
     [4.0, 5.3]
     """
-    agreed = np.asarray(symbolic_ll, dtype=np.float64) >= math.log1p(-error_rate) - 1e-12
-    return np.where(agreed, np.asarray(readings_ll, dtype=np.float64), readings_perfect)
+    return np.where(np.asarray(agreed, dtype=bool), np.asarray(readings_ll, dtype=np.float64), readings_perfect)
 
 
 def update_information(log_w_before: np.ndarray, log_w_after: np.ndarray) -> float:

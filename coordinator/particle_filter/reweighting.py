@@ -28,7 +28,7 @@ import numpy as np
 
 from .belief import Belief, gaussian_log_likelihood, logsumexp
 from .block_weights import GroupWeights
-from .likelihood import (INFORMATIVE_NATS, OUTLIER_WIDTH_SIGMAS, ess_temper, normalised_evidence, readings_given_outcome,
+from .likelihood import (INFORMATIVE_NATS, OUTLIER_WIDTH_SIGMAS, ess_temper, matched, normalised_evidence, readings_given_outcome,
                          perfect_log_likelihood, robust_log_likelihood, update_information)
 from .model_error import BIAS_Z, ModelError
 from .perception import mixture_log_likelihood
@@ -158,7 +158,7 @@ class Reweighting:
         if self.config.use_measurements and self.channels.size:
             meas_ll, meas_perfect = self._measurement_ll(observed[self.channels], predicted[:, self.channels])
             if self.config.disagreement_readings == "profile":
-                meas_ll = readings_given_outcome(ll, self.config.error_rate, meas_ll, meas_perfect)
+                meas_ll = readings_given_outcome(matched(ll, self.config.error_rate), meas_ll, meas_perfect)
             ll, perfect = ll + meas_ll, perfect + meas_perfect
         return ll, perfect
 
@@ -216,7 +216,7 @@ class Reweighting:
         if self._rows is None or not np.array_equal(self._rows, belief.particles):
             self.mismatched = np.zeros(belief.n, dtype=np.int64)      # renewed rows: counted anew
             self._rows = belief.particles.copy()
-        agreed = np.asarray(symbolic_ll) >= math.log1p(-self.config.error_rate) - 1e-12
+        agreed = matched(symbolic_ll, self.config.error_rate)
         if not agreed.any():
             return False            # no row predicted it: the outlier's business (eps), not the set's
         self.mismatched += ~agreed
