@@ -166,14 +166,27 @@ class RunConfig(BaseModel):
     # resample_move.MAX_SWEEPS, swept for this move too. Stored configs without the field
     # keep 1. At most 32: a move then re-simulates at most 32 x N x MOVE_WINDOW rows.
     first_window_sweeps: int = Field(8, ge=1, le=32)
-    # The readings of a world whose symbolic outcome did not match reality's: "profile"
-    # scores them as an exact prediction's, so the departure costs the declared error rate
-    # once (coordinator/particle_filter/likelihood.py, readings_given_outcome); "own" against
-    # the world's own prediction of the other regime, which charged it a second time
-    # (about x7000 for the container's opening where error_rate says x19: a 57.9 mm belief
-    # collapsed to 56.4 +- 0.05 mm on one rail pickup, docs/LOOP.md). Stored configs
-    # without the field keep "own".
-    disagreement_readings: Literal["profile", "own"] = "own"
+    # The readings of a world whose symbolic outcome did not match reality's: "departure"
+    # scores them flat over each channel's outlier width, the readings' density when
+    # reality departs from the world's outcome (coordinator/particle_filter/likelihood.py,
+    # readings_given_outcome; docs/LOOP.md); "own" against the world's own prediction of
+    # the other regime, which charged the departure a second time (about x7000 for the
+    # container's opening where error_rate says x19: a 57.9 mm belief collapsed to 56.4 +-
+    # 0.05 mm on one rail pickup); "profile" as an exact prediction, which rated a wrong
+    # world above every matched one 2.4 sigma off (the slide example then learned a
+    # friction of 0.51 for 0.2). "own" stays the default until "departure" holds on every
+    # domain (docs/LOOP.md). Stored configs without the field keep "own".
+    disagreement_readings: Literal["departure", "profile", "own"] = "own"
+    # The target of the recovery's move ("mh_move") past the run's first window: "prior",
+    # the uniform prior times the window's likelihood, which forgets every step before the
+    # window (with the window emptied at each episode's start, a slide belief of 0.200 +-
+    # 0.003 under the "departure" readings was moved back to 0.25 +- 0.11 by two steps);
+    # "belief", the belief before the window's first step (as the kernel density the
+    # resampler draws from) times the window's likelihood, the posterior, but anchored on a
+    # belief the monitor fired because it explained the window badly (one of the 30
+    # calibration runs at 8 particles ended at z 7.8). docs/LOOP.md, "The move's target
+    # past the first window".
+    move_target: Literal["belief", "prior"] = "prior"
     # With recovery "mh_move": the move also when every row has mispredicted the outcome of
     # a step some row predicted, since the rows were last renewed (within the episode): each
     # step explained by some hypothesis and the sequence by none, the truth between the
@@ -402,11 +415,11 @@ PRE_ISSUE_37_FILTER = {"ess_keep": 0.5, "resample_kernel": "rpf", "jitter_floor"
                        "model_error": "online", "recovery": "prior", "pose_rule": "mode",
                        "perception_nodes": 1, "pose_alternatives": False, "move_after_resample": False,
                        "kernel_bandwidth": "n", "first_window_sweeps": 1,
-                       "disagreement_readings": "own", "mismatch_move": False}
+                       "disagreement_readings": "own", "mismatch_move": False, "move_target": "prior"}
 
 PRE_ISSUE_24_FILTER = {"outlier_rate": 0.0, "model_error": "none", "ess_keep": 0.0,
                        "resample_kernel": "jitter", "block_weights": False, "lock_in": False,
-                       "disagreement_readings": "own", "mismatch_move": False}
+                       "disagreement_readings": "own", "mismatch_move": False, "move_target": "prior"}
 
 
 def stored_run_config(fields: dict) -> RunConfig:
@@ -432,6 +445,7 @@ def stored_run_config(fields: dict) -> RunConfig:
     # Before a mismatched world's readings were scored at the profile: against its own.
     fields.setdefault("disagreement_readings", "own")
     fields.setdefault("mismatch_move", False)
+    fields.setdefault("move_target", "prior")
     # Before Y's alternatives: Y's pose alone.
     fields.setdefault("pose_alternatives", False)
     # Before issue 24's filter: the plain Gaussian, sensor sigma, fixed jitter, no lock-in.

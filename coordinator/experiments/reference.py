@@ -21,8 +21,8 @@ from typing import Callable, Literal
 import numpy as np
 
 from ..particle_filter.belief import gaussian_log_likelihood, logsumexp
-from ..particle_filter.likelihood import (OUTLIER_WIDTH_SIGMAS, perfect_log_likelihood, readings_given_outcome,
-                                          robust_log_likelihood)
+from ..particle_filter.likelihood import (OUTLIER_WIDTH_SIGMAS, departure_log_likelihood, perfect_log_likelihood,
+                                          readings_given_outcome, robust_log_likelihood)
 
 __all__ = ["RefilterError", "entries", "judge", "load_run", "reference_posterior", "score"]
 
@@ -126,6 +126,9 @@ def step_loglik(config, channels: np.ndarray, sigma: np.ndarray, step: dict, res
         perfect = perfect_log_likelihood(obs, sigma, config.outlier_rate, width)
     if config.disagreement_readings == "profile":
         meas = readings_given_outcome(agreed, meas, perfect)
+    elif config.disagreement_readings == "departure":
+        meas = readings_given_outcome(agreed, meas, departure_log_likelihood(
+            obs, pred, sigma, config.outlier_rate, OUTLIER_WIDTH_SIGMAS * sigma))
     return ll + meas
 
 

@@ -81,18 +81,23 @@ class ParticleFilter:
         # Real steps the belief absorbed before the window's first: 0 while the window
         # reaches back to the prior, where the move's target is the exact posterior.
         self.before_window = 0
+        # The belief (rows, log weights) before each step of the window: the first is what
+        # the move's target carries of the evidence older than the window.
+        self.beliefs_before: list[tuple[np.ndarray, np.ndarray]] = []
 
     def start_episode(self) -> None:
         self.before_window += len(self.recent)
-        self.recent = []
+        self.recent, self.beliefs_before = [], []
         self.reweighting.start_episode()
 
-    def remember(self, step: RealStep) -> None:
-        """Add `step` to the move's window (the episode's last ``MOVE_WINDOW``), counting
-        the steps that leave it."""
+    def remember(self, step: RealStep, belief_before: tuple[np.ndarray, np.ndarray] | None = None) -> None:
+        """Add `step` to the move's window (the episode's last ``MOVE_WINDOW``), with the
+        belief before it, counting the steps that leave it."""
         self.recent.append(step)
+        self.beliefs_before.append(belief_before)
         self.before_window += max(len(self.recent) - MOVE_WINDOW, 0)
         del self.recent[:-MOVE_WINDOW]
+        del self.beliefs_before[:-MOVE_WINDOW]
 
     @property
     def window_from_prior(self) -> bool:
@@ -120,8 +125,9 @@ class ParticleFilter:
         b, rw = self.belief, self.reweighting
         n = b.n
         before = self._density_before(step.action)
+        prior = (b.particles.copy(), b.log_weights.copy())
         weighed = rw.weigh(b, step.action, symbolic_ll, step.measurements, simulated_measurements, nodes)
-        self.remember(step)
+        self.remember(step, prior)
         resampled, injected = rw.resample(b, rng, step.action, rejuvenate=not self.frozen)
         moved, spent = self._move(rng, simulate, symbolic)
         if before is not None and not spent and (resampled or not weighed.explained):
@@ -185,9 +191,22 @@ class ParticleFilter:
         # are, so one.
         sweeps = self.config.first_window_sweeps if self.window_from_prior else 1
         rows, moved = mh_move(b.particles, dims, b.low, b.high, scale, self.recent, counted,
-                              self._step_loglik(symbolic), rng, sweeps=sweeps)
+                              self._step_loglik(symbolic), rng, sweeps=sweeps,
+                              before=self._window_prior(dims))
         b.particles = rows
         return moved, spent[0]
+
+    def _window_prior(self, dims: np.ndarray) -> KernelDensity | None:
+        """What the move's target takes for the evidence before its window: None (the
+        uniform prior) while the window reaches back to it, or under ``move_target``
+        "prior"; else the belief before the window's first step as a kernel density
+        (docs/LOOP.md, "The move's target past the first window")."""
+        if self.window_from_prior or self.config.move_target == "prior" or not self.beliefs_before \
+                or self.beliefs_before[0] is None:
+            return None
+        rows, log_w = self.beliefs_before[0]
+        floor = max(self.config.jitter_floor, 1e-6) * (self.belief.high - self.belief.low)[dims]
+        return KernelDensity.of(rows[:, dims], log_w, rpf_bandwidth(len(rows), dims.size), floor)
 
     def _resample_move(self, before: tuple[np.ndarray, KernelDensity], step: RealStep,
                        rng: np.random.Generator, simulate: Simulate, symbolic: Symbolic) -> tuple[int, int]:

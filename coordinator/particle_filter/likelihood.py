@@ -36,15 +36,19 @@ predicts both: o_i = f(L_i), m_i = g(L_i). The symbolic match says reality depar
 right world's outcome with probability eps (``error_rate``). A world whose outcome matched
 scores the readings against its own prediction, p(m | L_i) as above. A world whose outcome
 did not match predicted readings of the other regime (fingers closed on nothing, opening
-0, where the real grasp held and read 60 mm), which the readings then score a second time:
-a failure the worlds do not share cost such rows eps x floor / peak, about x7000 for the
-container's opening, where the declared error rate says x19 (docs/LOOP.md, "Readings of a
-world whose outcome was wrong"). Under the departure, what this world would read had it
-reproduced the outcome is not simulated; the readings are scored at the profile over it,
-the likelihood of an exact prediction (``perfect_log_likelihood``): the departure is
-charged eps once, the most a readings' term can give, and a function of the observation
-alone (no other row, no weight), so a Metropolis-Hastings move's target stays a fixed
-function of L.
+0, where the real grasp held and read 60 mm); scored against them ("own") the departure
+was charged a second time, eps x floor / peak, about x7000 for the container's opening
+where the declared error rate says x19 (docs/LOOP.md, "Readings of a world whose outcome
+was wrong"). Under a departure the world says nothing about the readings, so they are
+scored by the density the mixture above already gives what the worlds do not model, flat
+over each channel's width W_c (``departure_log_likelihood``), not discounted by eps a
+second time: p(y | L_i) = eps prod_c 1 / W_c. It is a proper density, a function of the
+observation alone (no other row, no weight), so a Metropolis-Hastings move's target stays
+a fixed function of L; and a matched world within 3.4 sigma, where the floor meets the
+Gaussian, still outscores every departed one. "profile" (an exact prediction's score, the
+most a readings' term can give) charged the departure eps alone, but rated a departed
+world above every matched one 2.4 sigma off: on a sharp channel (the slide's puck) that is
+most of the matched worlds, and the belief ran to the wrong ones.
 """
 from __future__ import annotations
 
@@ -55,7 +59,8 @@ import numpy as np
 from .belief import observed_and_predicted
 
 __all__ = ["INFORMATIVE_NATS", "OUTLIER_WIDTH_SIGMAS", "robust_log_likelihood",
-           "perfect_log_likelihood", "matched", "readings_given_outcome", "update_information", "normalised_evidence", "ess_temper"]
+           "perfect_log_likelihood", "departure_log_likelihood", "matched", "readings_given_outcome",
+           "update_information", "normalised_evidence", "ess_temper"]
 
 _LOG_SQRT_2PI = 0.5 * math.log(2.0 * math.pi)
 
@@ -132,21 +137,45 @@ def perfect_log_likelihood(observed, sigma, eps: float = 0.05, width=None) -> fl
                                        sigma, eps, width)[0])
 
 
+def departure_log_likelihood(observed, predicted, sigma, eps: float = 0.05,
+                             width=None) -> np.ndarray:
+    """Per row, the readings' log-density under a departure from its world's outcome
+    (module docstring): each measured channel scores the better of its own prediction's
+    term and the flat 1 / W_c, sum_c max(log p_c(y_c | L_i), -log W_c). Arguments as
+    ``robust_log_likelihood``'s; eps = 0: the plain Gaussian's terms.
+
+    A departed world whose opening read 0 where reality read 60 mm scores -log W there
+    (not the mixture's eps / W), and keeps the terms of the channels it got right:
+
+    >>> ll = departure_log_likelihood([0.060, 0.10], [[0.0, 0.10]], 0.002)
+    >>> round(float(ll[0] - robust_log_likelihood([0.10], [[0.10]], 0.002)[0]), 4)  # -log 0.1 m
+    2.3026
+    """
+    sig_all = np.asarray(sigma, dtype=np.float64)
+    wid = OUTLIER_WIDTH_SIGMAS * sig_all if width is None else width
+    obs, pred, sig, wid = _measured(observed, predicted, sigma, wid)
+    if obs.shape[0] == 0:
+        return np.zeros(pred.shape[0])
+    terms = _channel_terms((pred - obs) / sig, sig, wid, eps)
+    return np.sum(np.maximum(terms, -np.log(wid)), axis=1)
+
+
 def matched(symbolic_ll, error_rate: float) -> np.ndarray:
     """Per row, whether its world predicted the observed symbolic outcome (its symbolic
     log-likelihood is log(1 - `error_rate`), not log `error_rate`)."""
     return np.asarray(symbolic_ll, dtype=np.float64) >= math.log1p(-error_rate) - 1e-12
 
 
-def readings_given_outcome(agreed, readings_ll, readings_perfect: float) -> np.ndarray:
+def readings_given_outcome(agreed, readings_ll, departed: float) -> np.ndarray:
     """The readings' log-likelihood per row given its world's outcome (module docstring): a
     row whose world `agreed` with the observed outcome (``matched``) keeps its own
-    `readings_ll`; one that did not scores `readings_perfect`, an exact prediction's.
+    `readings_ll`; one that did not scores `departed` (``departure_log_likelihood``, or
+    an exact prediction's for the "profile" rule).
 
     >>> readings_given_outcome(np.array([True, False]), np.array([4.0, -0.7]), 5.3).tolist()
     [4.0, 5.3]
     """
-    return np.where(np.asarray(agreed, dtype=bool), np.asarray(readings_ll, dtype=np.float64), readings_perfect)
+    return np.where(np.asarray(agreed, dtype=bool), np.asarray(readings_ll, dtype=np.float64), departed)
 
 
 def update_information(log_w_before: np.ndarray, log_w_after: np.ndarray) -> float:

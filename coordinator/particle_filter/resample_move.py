@@ -106,6 +106,23 @@ def propose(rows: np.ndarray, dims: np.ndarray, low: np.ndarray, high: np.ndarra
     return out
 
 
+def _propose_from(before: "KernelDensity", rows: np.ndarray, dims: np.ndarray, low: np.ndarray,
+                  high: np.ndarray, scale: np.ndarray, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """`propose` with the independence share drawn from `before` instead of the prior, and
+    each proposal's log density ratio under `before` where it took the walk (0 where it
+    was independent: the ratio cancels against the proposal's)."""
+    n, k = rows.shape[0], dims.size
+    independent = rng.random(n) < PRIOR_SHARE
+    lo, hi = low[dims], high[dims]
+    walk = reflect_into(rows[:, dims] + np.asarray(scale, dtype=np.float64) * rng.standard_normal((n, k)), lo, hi)
+    walk[independent] = before.sample(int(independent.sum()), rng, lo, hi)
+    proposed = rows.copy()
+    proposed[:, dims] = walk
+    log_ratio = np.where(independent, 0.0,
+                         before.log_density(proposed[:, dims]) - before.log_density(rows[:, dims]))
+    return proposed, log_ratio
+
+
 def window_log_likelihood(steps: Sequence[RealStep], rows: np.ndarray,
                           simulate: Callable[..., dict],
                           step_log_likelihood: Callable[[RealStep, dict], np.ndarray]) -> np.ndarray:
@@ -120,11 +137,18 @@ def window_log_likelihood(steps: Sequence[RealStep], rows: np.ndarray,
 def mh_move(rows: np.ndarray, dims: np.ndarray, low: np.ndarray, high: np.ndarray, scale: np.ndarray,
             steps: Sequence[RealStep], simulate: Callable[..., dict],
             step_log_likelihood: Callable[[RealStep, dict], np.ndarray],
-            rng: np.random.Generator, sweeps: int = 1) -> tuple[np.ndarray, int]:
+            rng: np.random.Generator, sweeps: int = 1,
+            before: "KernelDensity | None" = None) -> tuple[np.ndarray, int]:
     """`sweeps` Metropolis-Hastings sweeps over every row (equal weights assumed) against
-    the uniform prior times the window's likelihood: the new rows and how many proposals
-    were accepted. The first sweep simulates current and proposed rows in one call per
-    step (the shards see one batch of 2N); later sweeps only the proposals."""
+    the belief before the window times the window's likelihood: the new rows and how many
+    proposals were accepted. `before` None is the uniform prior (the window reaches back
+    to it); else the kernel density of the belief before the window's first step, which
+    carries the older evidence. Each row takes, with probability PRIOR_SHARE, an
+    independence proposal from `before` (or the prior), accepted on the likelihood ratio
+    alone (the density cancels), else the reflected random walk, accepted on the target's
+    ratio: a mixture of two kernels that each leave the target invariant. The first sweep
+    simulates current and proposed rows in one call per step (the shards see one batch of
+    2N); later sweeps only the proposals."""
     rows = np.asarray(rows, dtype=np.float64).copy()
     if not steps or np.asarray(dims).size == 0 or sweeps <= 0:
         return rows, 0
@@ -132,13 +156,16 @@ def mh_move(rows: np.ndarray, dims: np.ndarray, low: np.ndarray, high: np.ndarra
     ll = None
     accepted = 0
     for _ in range(sweeps):
-        proposed = propose(rows, dims, low, high, scale, rng)
+        if before is None:
+            proposed, log_ratio = propose(rows, dims, low, high, scale, rng), np.zeros(n)
+        else:
+            proposed, log_ratio = _propose_from(before, rows, dims, low, high, scale, rng)
         if ll is None:
             both = window_log_likelihood(steps, np.vstack([rows, proposed]), simulate, step_log_likelihood)
             ll, ll_p = both[:n], both[n:]
         else:
             ll_p = window_log_likelihood(steps, proposed, simulate, step_log_likelihood)
-        accept = np.log(rng.random(n)) < ll_p - ll
+        accept = np.log(rng.random(n)) < ll_p - ll + log_ratio
         rows[accept], ll[accept] = proposed[accept], ll_p[accept]
         accepted += int(accept.sum())
     return rows, accepted

@@ -28,8 +28,9 @@ import numpy as np
 
 from .belief import Belief, gaussian_log_likelihood, logsumexp
 from .block_weights import GroupWeights
-from .likelihood import (INFORMATIVE_NATS, OUTLIER_WIDTH_SIGMAS, ess_temper, matched, normalised_evidence, readings_given_outcome,
-                         perfect_log_likelihood, robust_log_likelihood, update_information)
+from .likelihood import (INFORMATIVE_NATS, OUTLIER_WIDTH_SIGMAS, departure_log_likelihood, ess_temper, matched,
+                         normalised_evidence, perfect_log_likelihood, readings_given_outcome, robust_log_likelihood,
+                         update_information)
 from .model_error import BIAS_Z, ModelError
 from .perception import mixture_log_likelihood
 from .rejuvenation import EXPLAINED, LockInMonitor, action_blocks, inject_prior, regularise, rpf_bandwidth
@@ -157,8 +158,12 @@ class Reweighting:
         perfect = math.log1p(-self.config.error_rate)
         if self.config.use_measurements and self.channels.size:
             meas_ll, meas_perfect = self._measurement_ll(observed[self.channels], predicted[:, self.channels])
-            if self.config.disagreement_readings == "profile":
-                meas_ll = readings_given_outcome(matched(ll, self.config.error_rate), meas_ll, meas_perfect)
+            rule = self.config.disagreement_readings
+            if rule != "own":
+                departed = meas_perfect if rule == "profile" else departure_log_likelihood(
+                    observed[self.channels], predicted[:, self.channels], self.sigma(),
+                    self.config.outlier_rate, OUTLIER_WIDTH_SIGMAS * self.sensor_sigma)
+                meas_ll = readings_given_outcome(matched(ll, self.config.error_rate), meas_ll, departed)
             ll, perfect = ll + meas_ll, perfect + meas_perfect
         return ll, perfect
 

@@ -53,7 +53,7 @@ def test_the_mixture_is_the_weighted_average_of_the_nodes_likelihoods():
     assert np.allclose(got, [0.05 / 3 + 0.95 * 2 / 3, 0.9])
 
 
-def _failed_zero_clearance_grasp(nodes: int, readings: str = "profile") -> float:
+def _failed_zero_clearance_grasp(nodes: int, readings: str = "departure") -> float:
     """The share of the belief on the worlds of 55 mm and more after the real grasp at
     57.9 mm open (a believed 50.4 mm) failed, the fingers closing on nothing (0 mm);
     `readings`: how a world whose outcome did not match has its opening scored."""
@@ -87,12 +87,16 @@ def _failed_zero_clearance_grasp(nodes: int, readings: str = "profile") -> float
 def test_a_failed_grasp_without_clearance_keeps_the_large_worlds():
     """Fails on the perceived pose alone with the mismatched worlds' openings scored against
     their own prediction (perception_nodes=1, disagreement_readings "own": the filter
-    before): the large worlds keep about 1e-3 of the belief there. Scored at the profile
-    (the default) the failure costs them the declared error rate once (x19: 0.066 of the
-    belief), and with the rule a third or more."""
+    before, and the default): the large worlds keep about 2e-4 of the belief there. Under the
+    departure the failure costs them the error rate once times the opening's worth against
+    no reading (x360: 0.004 of the belief; "profile", the error rate alone: 0.066), and with
+    the perception's quadrature, which has the large worlds miss at the node off their
+    grasp, a third."""
     alone = _failed_zero_clearance_grasp(1, "own")
-    profile = _failed_zero_clearance_grasp(1)
-    integrated = _failed_zero_clearance_grasp(3)
-    assert alone < 0.01, alone
+    departure = _failed_zero_clearance_grasp(1)
+    profile = _failed_zero_clearance_grasp(1, "profile")
+    integrated = _failed_zero_clearance_grasp(3)      # (under the departure)
+    assert alone < 1e-3, alone
+    assert 1e-3 < departure < 0.03, departure
     assert 0.03 < profile < 0.2, profile
     assert integrated > 0.2, integrated

@@ -166,7 +166,7 @@ def test_an_old_checkpoint_loads_and_keeps_the_filter_it_ran_with():
     data = json.loads(json.dumps(s.to_checkpoint()))
     data.pop("reweighting")
     for key in ("outlier_rate", "model_error", "ess_keep", "resample_kernel", "block_weights", "lock_in",
-                "lock_in_slow", "lock_in_fast", "disagreement_readings", "mismatch_move"):
+                "lock_in_slow", "lock_in_fast", "disagreement_readings", "mismatch_move", "move_target"):
         data["config"].pop(key)
     old = Session.from_checkpoint(data)
     assert {k: getattr(old.config, k) for k in PRE_ISSUE_24_FILTER} == PRE_ISSUE_24_FILTER
