@@ -12,7 +12,7 @@ import json
 import os
 from pathlib import Path
 
-from ..run_config import RunConfig
+from ..run_config import RunConfig, stored_run_config
 from .spec import Setting, Spec
 
 
@@ -63,6 +63,18 @@ def _well_formed(data: dict, config: RunConfig) -> bool:
             and isinstance(data.get("summary"), dict))
 
 
+def _as_now(stored) -> dict | None:
+    """A run file's config as today's RunConfig reads it: a field added since it was made
+    takes what such a file ran with (``stored_run_config``), so a sweep resumes across the
+    addition of a setting whose stored default is what it asks for."""
+    if not isinstance(stored, dict):
+        return stored
+    try:
+        return jsonable(stored_run_config(stored).model_dump())
+    except (ValueError, TypeError):
+        return stored
+
+
 def read_run(path: Path, config: RunConfig) -> dict | None:
     """A finished or partial run file if its config is `config`; ResumeError if it was made
     with another config; None if unreadable or not a whole run (a torn write, a file
@@ -74,9 +86,10 @@ def read_run(path: Path, config: RunConfig) -> dict | None:
     if not isinstance(data, dict):
         return None
     wanted = jsonable(config.model_dump())
-    if data.get("config") != wanted:
+    stored = _as_now(data.get("config"))
+    if stored != wanted:
         raise ResumeError(f"{path} was made with other settings: "
-                          f"{_config_diff(data.get('config') or {}, wanted)}")
+                          f"{_config_diff(stored or {}, wanted)}")
     return data if _well_formed(data, config) else None
 
 
