@@ -125,7 +125,8 @@ class ParticleFilter:
         b, rw = self.belief, self.reweighting
         n = b.n
         before = self._density_before(step.action)
-        prior = (b.particles.copy(), b.log_weights.copy())
+        # (kept only where the move's target reads it: a copy of the rows per step otherwise)
+        prior = (b.particles.copy(), b.log_weights.copy()) if self.config.move_target == "belief" else None
         weighed = rw.weigh(b, step.action, symbolic_ll, step.measurements, simulated_measurements, nodes)
         self.remember(step, prior)
         resampled, injected = rw.resample(b, rng, step.action, rejuvenate=not self.frozen)

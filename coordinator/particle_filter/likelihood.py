@@ -97,6 +97,14 @@ def _channel_terms(z: np.ndarray, sigma: np.ndarray, width: np.ndarray, eps: flo
     return np.logaddexp(math.log1p(-eps) + gauss, math.log(eps) - np.log(width))
 
 
+def _robust_terms(observed, predicted, sigma, eps: float, width) -> tuple[np.ndarray, np.ndarray]:
+    """The mixture's log term per particle and measured channel (N, K), and each measured
+    channel's outlier width (K,); `width` None: ``OUTLIER_WIDTH_SIGMAS`` x sigma."""
+    wid = OUTLIER_WIDTH_SIGMAS * np.asarray(sigma, dtype=np.float64) if width is None else width
+    obs, pred, sig, wid = _measured(observed, predicted, sigma, wid)
+    return _channel_terms((pred - obs) / sig, sig, wid, eps), wid
+
+
 def robust_log_likelihood(observed, predicted, sigma, eps: float = 0.05,
                           width=None) -> np.ndarray:
     """Sum over measured channels of log((1 - eps) N(y; f_i, sigma) + eps / W) per particle.
@@ -121,12 +129,7 @@ def robust_log_likelihood(observed, predicted, sigma, eps: float = 0.05,
     """
     if not 0.0 <= eps < 1.0:
         raise ValueError(f"eps: must be in [0, 1), got {eps}")
-    sig_all = np.asarray(sigma, dtype=np.float64)
-    wid = OUTLIER_WIDTH_SIGMAS * sig_all if width is None else width
-    obs, pred, sig, wid = _measured(observed, predicted, sigma, wid)
-    if obs.shape[0] == 0:
-        return np.zeros(pred.shape[0])
-    terms = _channel_terms((pred - obs) / sig, sig, wid, eps)
+    terms, _ = _robust_terms(observed, predicted, sigma, eps, width)
     return np.sum(terms, axis=1)
 
 
@@ -151,12 +154,7 @@ def departure_log_likelihood(observed, predicted, sigma, eps: float = 0.05,
     >>> round(float(ll[0] - robust_log_likelihood([0.10], [[0.10]], 0.002)[0]), 4)  # -log 0.1 m
     2.3026
     """
-    sig_all = np.asarray(sigma, dtype=np.float64)
-    wid = OUTLIER_WIDTH_SIGMAS * sig_all if width is None else width
-    obs, pred, sig, wid = _measured(observed, predicted, sigma, wid)
-    if obs.shape[0] == 0:
-        return np.zeros(pred.shape[0])
-    terms = _channel_terms((pred - obs) / sig, sig, wid, eps)
+    terms, wid = _robust_terms(observed, predicted, sigma, eps, width)
     return np.sum(np.maximum(terms, -np.log(wid)), axis=1)
 
 
