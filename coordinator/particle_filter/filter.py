@@ -193,7 +193,8 @@ class ParticleFilter:
         sweeps = self.config.first_window_sweeps if self.window_from_prior else 1
         rows, moved = mh_move(b.particles, dims, b.low, b.high, scale, self.recent, counted,
                               self._step_loglik(symbolic), rng, sweeps=sweeps,
-                              before=self._window_prior(dims))
+                              before=self._window_prior(dims),
+                              step_bound=lambda real: self.reweighting.log_likelihood_bound(real.measurements))
         b.particles = rows
         return moved, spent[0]
 

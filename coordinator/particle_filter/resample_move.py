@@ -28,7 +28,10 @@ first ``MOVE_WINDOW``) the target is the exact posterior, and the chain takes th
 ``first_window_sweeps`` (default ``MAX_SWEEPS``) sweeps towards it (N x ``MOVE_WINDOW``
 more particle-actions each): one
 sweep moves only the rows whose one proposal lands where the evidence is, and a run of
-failed first grasps that no row explains otherwise goes on (docs/LOOP.md).
+failed first grasps that no row explains otherwise goes on (docs/LOOP.md). A proposal
+is replayed step by step only while it can still be accepted (early rejection against
+the likelihood's bound: the same runs, fewer particle-actions; docs/LOOP.md, "Early
+rejection in the move").
 
 ``resample_move`` is Gilks and Berzuini's scheme as written, under ``move_after_resample``
 (off by default): after every resample (and every step no row explained) the rows
@@ -134,11 +137,69 @@ def window_log_likelihood(steps: Sequence[RealStep], rows: np.ndarray,
     return total
 
 
+def _in_order(per_step: np.ndarray) -> np.ndarray:
+    """The rows' window log-likelihood from their (steps, rows) terms, summed in the
+    window's order, as ``window_log_likelihood`` sums it (so bit for bit its value)."""
+    total = np.zeros(per_step.shape[1])
+    for terms in per_step:
+        total += terms
+    return total
+
+
+# Early rejection's slack (nats): a proposal is dropped only when even the bound of the
+# steps it has not replayed leaves it this far short of acceptance, so that summing its
+# terms in another order than the window's (rounding of ~1e-13 nats) cannot flip a decision.
+EARLY_REJECTION_SLACK = 1e-6
+
+
+def _screened(steps: Sequence[RealStep], proposed: np.ndarray, needed: np.ndarray, bounds: np.ndarray,
+              order: np.ndarray, simulate: Callable[..., dict],
+              step_log_likelihood: Callable[[RealStep, dict], np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    """The proposals' window log-likelihood with early rejection (Solonen et al. 2012): the
+    steps replayed in `order`, each for the proposals still alive, and a proposal dropped
+    once its terms so far plus the `bounds` (the most any row can score) of the steps left
+    fall short of `needed` (what acceptance asks of its whole sum). Returns the sums (NaN
+    where dropped: rejected for certain, the same decision the full window makes), the
+    (steps, rows) terms replayed, and whether each row was replayed in full."""
+    n = len(proposed)
+    per_step = np.full((len(steps), n), np.nan)
+    partial = np.zeros(n)
+    alive = np.ones(n, dtype=bool)
+    rest = np.concatenate([np.cumsum(bounds[order][::-1])[::-1][1:], [0.0]])
+    for j, left in zip(order, rest):
+        idx = np.flatnonzero(alive)
+        if idx.size == 0:
+            break
+        st = steps[j]
+        terms = step_log_likelihood(st, simulate(st.start, proposed[idx], st.action, st.trajectory, st.start_time))
+        per_step[j, idx] = terms
+        partial[idx] += terms
+        alive[idx] = ~(partial[idx] + left < needed[idx] - EARLY_REJECTION_SLACK)
+    full = alive.copy()
+    out = np.full(n, np.nan)
+    if full.any():
+        out[full] = _in_order(per_step[:, full])
+    return out, per_step, full
+
+
+def _screening_order(per_step: np.ndarray) -> np.ndarray:
+    """The steps that tell the current rows apart most, first (their terms' spread over the
+    rows): where a proposal that will be rejected shows it soonest. Stable, so ties keep
+    the window's order."""
+    finite = np.isfinite(per_step)
+    count = np.maximum(finite.sum(axis=1), 1)
+    vals = np.where(finite, per_step, 0.0)
+    mean = vals.sum(axis=1) / count
+    spread = np.sqrt(np.where(finite, (vals - mean[:, None]) ** 2, 0.0).sum(axis=1) / count)
+    return np.argsort(-spread, kind="stable")
+
+
 def mh_move(rows: np.ndarray, dims: np.ndarray, low: np.ndarray, high: np.ndarray, scale: np.ndarray,
             steps: Sequence[RealStep], simulate: Callable[..., dict],
             step_log_likelihood: Callable[[RealStep, dict], np.ndarray],
             rng: np.random.Generator, sweeps: int = 1,
-            before: "KernelDensity | None" = None) -> tuple[np.ndarray, int]:
+            before: "KernelDensity | None" = None,
+            step_bound: Callable[[RealStep], float] | None = None) -> tuple[np.ndarray, int]:
     """`sweeps` Metropolis-Hastings sweeps over every row (equal weights assumed) against
     the belief before the window times the window's likelihood: the new rows and how many
     proposals were accepted. `before` None is the uniform prior (the window reaches back
@@ -146,26 +207,48 @@ def mh_move(rows: np.ndarray, dims: np.ndarray, low: np.ndarray, high: np.ndarra
     carries the older evidence. Each row takes, with probability PRIOR_SHARE, an
     independence proposal from `before` (or the prior), accepted on the likelihood ratio
     alone (the density cancels), else the reflected random walk, accepted on the target's
-    ratio: a mixture of two kernels that each leave the target invariant. The first sweep
-    simulates current and proposed rows in one call per step (the shards see one batch of
-    2N); later sweeps only the proposals."""
+    ratio: a mixture of two kernels that each leave the target invariant.
+
+    Without `step_bound` the first sweep simulates current and proposed rows in one call
+    per step (the shards see one batch of 2N) and later sweeps only the proposals. With
+    `step_bound` (an upper bound on any row's log-likelihood of a step) the proposals are
+    screened by early rejection: the acceptance's uniform is drawn before the window is
+    replayed (the same draws in the same order: the worlds draw nothing), and a proposal
+    is replayed step by step only while it can still be accepted. The rows, the accepted
+    count and every later draw are bit for bit those of the full replay; only the
+    particle-actions spent differ."""
     rows = np.asarray(rows, dtype=np.float64).copy()
     if not steps or np.asarray(dims).size == 0 or sweeps <= 0:
         return rows, 0
     n = rows.shape[0]
     ll = None
     accepted = 0
+    bounds = None if step_bound is None else np.array([float(step_bound(st)) for st in steps])
+    cur_steps = None
     for _ in range(sweeps):
         if before is None:
             proposed, log_ratio = propose(rows, dims, low, high, scale, rng), np.zeros(n)
         else:
             proposed, log_ratio = _propose_from(before, rows, dims, low, high, scale, rng)
-        if ll is None:
-            both = window_log_likelihood(steps, np.vstack([rows, proposed]), simulate, step_log_likelihood)
-            ll, ll_p = both[:n], both[n:]
+        if bounds is not None:
+            log_u = np.log(rng.random(n))
+            if cur_steps is None:
+                cur_steps = np.array([step_log_likelihood(st, simulate(st.start, rows, st.action, st.trajectory,
+                                                                       st.start_time)) for st in steps])
+                ll = _in_order(cur_steps)
+            # accepted iff log_u < ll_p - ll + log_ratio, i.e. ll_p > log_u + ll - log_ratio
+            ll_p, terms, full = _screened(steps, proposed, log_u + ll - log_ratio, bounds,
+                                          _screening_order(cur_steps), simulate, step_log_likelihood)
+            with np.errstate(invalid="ignore"):
+                accept = full & (log_u < ll_p - ll + log_ratio)
+            cur_steps[:, accept] = terms[:, accept]
         else:
-            ll_p = window_log_likelihood(steps, proposed, simulate, step_log_likelihood)
-        accept = np.log(rng.random(n)) < ll_p - ll + log_ratio
+            if ll is None:
+                both = window_log_likelihood(steps, np.vstack([rows, proposed]), simulate, step_log_likelihood)
+                ll, ll_p = both[:n], both[n:]
+            else:
+                ll_p = window_log_likelihood(steps, proposed, simulate, step_log_likelihood)
+            accept = np.log(rng.random(n)) < ll_p - ll + log_ratio
         rows[accept], ll[accept] = proposed[accept], ll_p[accept]
         accepted += int(accept.sum())
     return rows, accepted

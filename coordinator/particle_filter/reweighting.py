@@ -167,6 +167,20 @@ class Reweighting:
             ll, perfect = ll + meas_ll, perfect + meas_perfect
         return ll, perfect
 
+    def log_likelihood_bound(self, observed: np.ndarray) -> float:
+        """The most any row's ``log_likelihood`` (or ``node_log_likelihood``, a mixture of
+        them) of `observed` can be, whatever its world predicted: the better symbolic term,
+        plus per weighed channel the better of the robust term's peak and the departure's
+        flat floor. The move's early rejection drops a proposal only against it."""
+        err = self.config.error_rate
+        bound = max(math.log1p(-err), math.log(err) if err > 0.0 else -math.inf)
+        if self.config.use_measurements and self.channels.size:
+            obs = np.asarray(observed, dtype=np.float64)[self.channels]
+            exact = np.where(np.isnan(obs), 0.0, obs)[None, :]
+            bound += float(departure_log_likelihood(obs, exact, self.sigma(), self.config.outlier_rate,
+                                                    OUTLIER_WIDTH_SIGMAS * self.sensor_sigma)[0])
+        return bound
+
     def node_log_likelihood(self, nodes: Sequence[tuple[float, np.ndarray, np.ndarray]],
                             observed: np.ndarray) -> np.ndarray:
         """Per-particle log-likelihood integrated over the perception error: nodes are
