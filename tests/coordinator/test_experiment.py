@@ -16,8 +16,10 @@ import pytest
 from coordinator import experiments as ex
 from coordinator.cli import main
 
+# Four objects, not eight: T* probes 9 contexts, not 17, and every run's worlds are half
+# as full (the seven experiments: 147 s against 188 s on 2 cores, measured).
 TINY = ["--runs", "2", "--episodes", "2", "--particles", "4", "--max-steps", "3",
-        "--probe-trials", "1", "--no-progress"]
+        "--probe-trials", "1", "--no-progress", "--set", "n_blocks=4"]
 # The sweep has its own files and test (tests/coordinator/test_sweep.py).
 GENERIC = tuple(n for n in ex.EXPERIMENTS if n != "sweep")
 SUMMARY_KEYS = {"mean_utility_last_fifth", "episodes_to_converge", "final_posterior_error",
@@ -261,11 +263,11 @@ def test_particles_with_the_kld_budget_shows_the_count_falling(ray_cluster, tmp_
     particle-actions, the count falls from episode 1 to the last as the belief converges,
     and the summary table says so in its own rows."""
     out = tmp_path / "kld"
-    # (Two episodes of N <= 12 (measured 360 -> 228 particle-actions at N=12), half the
-    # particle-actions of three of N <= 24.)
+    # (Two episodes of N <= 12 with four blocks (measured 60 -> 36 particle-actions at N=12;
+    # with eight, 360 -> 228 at twice the cost).
     assert main(["experiment", "particles", "--runs", "1", "--episodes", "2", "--particles", "12",
                  "--probe-trials", "1", "--no-progress", "--seed", "3", "--particle-budget", "kld",
-                 "--min-particles", "4", "--out", str(out)]) == 0
+                 "--min-particles", "4", "--set", "n_blocks=4", "--out", str(out)]) == 0
     summary = json.loads((out / "particles.json").read_text())
     assert summary["spec"]["particle_budget"] == "kld"
     top = summary["settings"]["N=12"]
@@ -332,7 +334,7 @@ def test_compare_on_stack_and_push_uses_its_probes_and_plans(ray_cluster, tmp_pa
     t_star = json.loads(files[0].read_text())
     assert t_star["params"]["domain"] == "stack_and_push"
     assert {k.split(":")[0] for k in t_star["successes"]} == {"pickup", "built_stack", "built_push"}
-    assert len(t_star["transition"]["stack"]) == len(t_star["transition"]["push"]) == 8
+    assert len(t_star["transition"]["stack"]) == len(t_star["transition"]["push"]) == 4   # --set n_blocks=4
     assert "tower of h" in t_star["method"]
     stored = json.loads(next((out / "runs" / "compare-tmoc").glob("*.json")).read_text())
     assert stored["config"]["domain"] == "stack_and_push"
