@@ -15,9 +15,8 @@ from .conftest import Server, tmoc, wait_for
 # Slow: real tasks on a served Ray. Timeout: a served task's wait and the `tmoc run --frames` subprocess may take 600 s.
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(720)]
 
-# 8 blocks of 45 mm: the first episode's one-trip push of 8 topples (a failed action).
-# Six blocks: episode 1 still fails a push and two stacks (the failed action's picture), in
-# 29 s a run rather than 40 s with eight (measured with `tmoc run`).
+# Six blocks of 45 mm: episode 1 fails a push and two stacks (the failed action's picture),
+# in 29 s a run rather than 40 s with eight (measured with `tmoc run`).
 SPEC = {"particles": 4, "episodes": 2, "n_blocks": 6, "seed": 1, "max_steps": 40}
 
 
