@@ -44,7 +44,7 @@ def _friendly(err: dict, settings: Settings) -> str:
     if loc[-1:] == ("domain",) and typ == "literal_error":
         from coordinator.domains import names
         return f"unknown domain {err.get('input')!r} (known: {', '.join(names())}; GET /v1/domains)"
-    if typ == "less_than_equal" and loc[-1:] == ("particles",):
+    if typ == "less_than_equal" and loc[-1:] in (("particles",), ("counterfactual_rows",)):
         return f"{msg} (this server's limit --max-particles {settings.max_particles})"
     if typ == "less_than_equal" and loc[-1:] == ("episodes",):
         return f"{msg} (this server's limit --max-episodes {settings.max_episodes})"

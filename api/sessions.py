@@ -168,6 +168,13 @@ class SessionManager:
             raise SessionConflict(f"observation: cannot plan from the observed state: {exc}",
                                   "observation") from None
 
+    def _first(self, live: LiveSession) -> dict | None:
+        """An episode's first step: as ``_next``, but with the worlds lent where the session
+        makes a counterfactual snapshot before its first plan (``counterfactual_rows``)."""
+        if live.session.config.counterfactual_rows > 0:
+            return self._with_pool(live, lambda: self._next(live))
+        return self._next(live)
+
     def _with_pool(self, live: LiveSession, fn):
         """fn() with a shard pool lent to the session (none needed without a belief)."""
         s = live.session
@@ -209,7 +216,10 @@ class SessionManager:
                         session.next_step()
 
                 session.start_episode(from_canonical(row["episode_start"]))
-                plan()
+                if session.config.counterfactual_rows > 0:      # as `_first` planned it
+                    session.next_step()
+                else:
+                    plan()
                 for obs in steps:
                     if self.stopping.is_set():
                         raise ReplayStopped(session_id)
@@ -327,7 +337,7 @@ class SessionManager:
                 raise SessionConflict("observation: every block is already delivered; nothing to do",
                                       "observation")
             session.start_episode(obs)
-            nxt = self._next(live)
+            nxt = self._first(live)
             mirror.update(episode_start=canonical, pending=nxt)
         with live.lock:
             self.store.create_session(session_id, spec, checkpoint, mirror, self.max_active, self.idle_s)
@@ -352,7 +362,7 @@ class SessionManager:
             s.start_episode(obs)
             live.step = 0
             try:
-                nxt = self._next(live)
+                nxt = self._first(live)
                 self.store.session_start_episode(session_id, canonical, nxt)
             except Exception:
                 self._live.pop(session_id, None)         # rebuilt from the store next time

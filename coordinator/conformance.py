@@ -23,6 +23,7 @@ from sim_workers.properties import PropertyError
 
 from .domains import Domain, load, spec
 from .loop.transit import workspace_of
+from .transition.counterfactual import context_counts
 
 
 @dataclass(frozen=True)
@@ -396,6 +397,25 @@ def check_option_bounds(d: Domain) -> str:
     return f"{len(dict(d.task.http_options))} request options bounded, {len(ranges)} ranges"
 
 
+def check_counterfactual(d: Domain) -> str:
+    """The counterfactual contexts (issue 40): every job is a probe action at a load its
+    probe accepts, and the rates of trials that all succeeded reach T's contexts (and are
+    1 there). No physics runs: the probes themselves are T*'s."""
+    phys, task, n = d.physics, d.task, d.n_objects
+    jobs = phys.counterfactual_jobs(n)
+    if not jobs:
+        return "no counterfactual contexts (no probes declared): T learns from executed actions only"
+    for action, k in jobs:
+        assert action in phys.probe_actions, f"counterfactual_jobs: {action!r} is not in probe_actions"
+        assert int(k) in phys.probe_loads(action), f"counterfactual_jobs: load {k} outside {action}'s probe_loads"
+    contexts = task.contexts(n)
+    counts = context_counts(phys.counterfactual_rates({tuple(j): 1 for j in jobs}, 1, n), contexts, 1)
+    assert counts, "counterfactual_rates: no rate names one of T's actions"
+    wrong = {c: v for c, v in counts.items() if v != (1.0, 1.0)}
+    assert not wrong, f"counterfactual_rates: trials that all succeeded give rates below 1 at {sorted(wrong)}"
+    return f"{len(jobs)} probe jobs reach {len(counts)} of {len(contexts)} T contexts"
+
+
 CHECKS: dict[str, Callable[[Domain], str]] = {
     "structure": check_structure,
     "spec": check_spec,
@@ -412,6 +432,7 @@ CHECKS: dict[str, Callable[[Domain], str]] = {
     "misalignment": check_misalignment,
     "pose_alternatives": check_pose_alternatives,
     "option_bounds": check_option_bounds,
+    "counterfactual": check_counterfactual,
 }
 
 

@@ -210,6 +210,12 @@ class RunConfig(BaseModel):
     # (coordinator.transition.transition_model.sim_discount); "none" counts them at sim_weight always
     # (every run before the field; stored settings without it keep it).
     sim_discount: Literal["power_prior", "none"] = "power_prior"
+    # Counterfactual simulated experience (issue 40; coordinator.transition.counterfactual):
+    # before each episode's first plan, this many rows of L drawn from the belief each run
+    # one trial of every context the domain declares, and T takes the outcomes as
+    # simulated evidence (a power prior per action family). 0: off, the paper's loop
+    # (stored settings without the field keep it).
+    counterfactual_rows: int = Field(0, ge=0, le=256)
     # A reality gap the particle worlds do not know, for simulated realities: "ACTION:K"
     # makes every ACTION in a T context >= K fail in reality only (coordinator.loop.reality.
     # ContextFailure), e.g. "stack:3" (stacks onto 3 or more blocks). None: no such gap.
@@ -391,6 +397,7 @@ def field_bounds(name: str) -> tuple[float | None, float | None]:
 # agent's decisions never shift the reality's draws (and results depend on the seed only).
 AGENT_STREAM = 0        # the session: belief, planning, grasps
 REALITY_STREAM = 1      # the simulated reality: per-episode gap and placement
+COUNTERFACTUAL_STREAM = 2   # counterfactual experience: rows and trials, per episode
 
 
 def seed_stream(seed: int, stream: int) -> np.random.Generator:
@@ -435,6 +442,8 @@ def stored_run_config(fields: dict) -> RunConfig:
         fields.setdefault("n_blocks", 8)
     fields.setdefault("particle_budget", "fixed")
     fields.setdefault("sim_discount", "none")
+    # Before counterfactual experience (issue 40): the executed action's worlds only.
+    fields.setdefault("counterfactual_rows", 0)
     # Before issue 37's filter: the lock-in monitor redrew from the prior.
     fields.setdefault("recovery", "prior")
     # Before the move after resampling, and the kernel's bandwidth from the ESS.

@@ -316,6 +316,22 @@ class PhysicsDomain(abc.ABC):
         """T* in the planner's form from the probes' success counts."""
         raise NotImplementedError(f"domain {self.name!r} has no T* probes")
 
+    # -- counterfactual experience (issue 40) ---------------------------------------------
+    def counterfactual_jobs(self, n_blocks: int) -> list[tuple[str, int]]:
+        """(probe action, load) of the contexts the planner may choose, simulated from the
+        belief before planning (``coordinator.transition.counterfactual``); default: T*'s
+        probes (``t_star_probe_jobs``); [] where the domain has none."""
+        try:
+            return list(self.t_star_probe_jobs(n_blocks))
+        except NotImplementedError:
+            return []
+
+    def counterfactual_rates(self, successes: dict, trials: int, n_blocks: int) -> dict:
+        """The counterfactual probes' success counts as T's success rates, in the planner's
+        form (``{action: p}`` or ``{action: [p per context]}``); default: as T*
+        (``t_star_from_probes``), since the jobs are T*'s."""
+        return self.t_star_from_probes(successes, trials, n_blocks)
+
 
 def required_members(base: type = PhysicsDomain) -> list[str]:
     """The members a domain must define: the base's declared class attributes without a

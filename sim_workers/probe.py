@@ -86,17 +86,56 @@ def run_trial(action: str, true_size: float, believed_size: float, load_k: int,
     """One seeded trial; True when the action had its intended symbolic effect. The world
     is the domain with jittered friction; what the trial does is the domain's
     ``probe_trial`` (each domain knows how to set up its own actions). `truth` and
-    `belief` (every property of L by name) reach a probe that takes them."""
+    `belief` (every property of L by name) reach a probe that takes them. A trial whose
+    context was not reached (the probe's None) counts as a failure here, as T* counts it."""
+    return bool(_trial(action, true_size, believed_size, load_k, rng, n_blocks, options, domain=domain,
+                       believed_density=believed_density, truth=truth, belief=belief, believed_kw=believed_kw))
+
+
+def _trial(action: str, true_size: float, believed_size: float, load_k: int,
+           rng: np.random.Generator, n_blocks: int = 8, options: dict | None = None, *,
+           domain: str, believed_density: float | None = None, truth: dict | None = None,
+           belief: dict | None = None, believed_kw: dict | None = None) -> bool | None:
+    """``run_trial`` with the probe's own answer: True, False, or None where the probe could
+    not set its context up (e.g. a tower Y could not build)."""
     world_domain = jittered_domain(rng, domain=domain, n_blocks=n_blocks, **(options or {}))
     extra = {**(believed_kw or {}), **({} if believed_density is None else {"believed_density": believed_density})}
     if by_name(world_domain):
         full_truth, full_belief = _named(world_domain, true_size, believed_size, truth, belief, extra)
-        return bool(world_domain.probe_trial(action, load_k, rng, truth=full_truth, belief=full_belief))
+        return _answer(world_domain.probe_trial(action, load_k, rng, truth=full_truth, belief=full_belief))
     takes = probe_keywords(world_domain)
     for name, value in (("truth", truth), ("belief", belief)):
         if value is not None and ({"*", name} & takes):
             extra[name] = dict(value)
-    return bool(world_domain.probe_trial(action, true_size, believed_size, load_k, rng, **extra))
+    return _answer(world_domain.probe_trial(action, true_size, believed_size, load_k, rng, **extra))
+
+
+def _answer(value) -> bool | None:
+    return None if value is None else bool(value)
+
+
+def trial_by_names(action: str, load_k: int, rng: np.random.Generator, *, domain: str, n_blocks: int,
+                   options: dict | None, truth: dict, belief: dict) -> bool | None:
+    """One seeded trial with the truth and Y's belief given by L's names alone (each a
+    number per property): what a counterfactual simulation asks of a world
+    (``coordinator.transition.counterfactual``); None where the probe could not reach the
+    context (a tower Y at this belief could not build in this world). A probe declared by names gets them as
+    they are; one declared with the block worlds' positions gets the size positionally,
+    the truth's other properties as the domain options of the same name (the built-in
+    probes read the true density from ``density``) and the belief's as
+    ``believed_<name>`` where the probe takes that keyword."""
+    options = dict(options or {})
+    world = load(domain, **{**options, "n_blocks": n_blocks})
+    if by_name(world):
+        return _trial(action, math.nan, math.nan, load_k, rng, n_blocks, options, domain=domain,
+                      truth=dict(truth), belief=dict(belief))
+    fields = {f.name for f in dataclasses.fields(world.spec)}
+    options.update({k: float(v) for k, v in truth.items() if k != "size" and k in fields})
+    takes = probe_keywords(world)
+    believed_kw = {f"believed_{k}": float(v) for k, v in belief.items()
+                   if k != "size" and ({"*", f"believed_{k}"} & takes)}
+    return _trial(action, float(truth.get("size", math.nan)), float(belief.get("size", math.nan)),
+                  load_k, rng, n_blocks, options, domain=domain, believed_kw=believed_kw)
 
 
 def probe_loads(domain_obj, action: str) -> range:

@@ -42,6 +42,7 @@ class Shard:
         # does not survive pickling. Particle worlds leave out the bodies an action cannot
         # reach (sim_workers/reach.py; guarded, so outcomes do not depend on it).
         self.domain = load(domain, **(options or {}))
+        self.domain_name, self.options = domain, dict(options or {})
         self.worlds = [make_world(self.domain, leave_out=leave_out) for _ in range(n_worlds)]
 
     def simulate(self, start: np.ndarray, sizes: np.ndarray, action: str, trajectory: np.ndarray,
@@ -87,6 +88,26 @@ class Shard:
         out = self.simulate(start, sizes, action, trajectory, start_time)
         out["node"] = self.where()
         return out
+
+    def probe_rows(self, jobs: list, truths: list[dict], belief: dict, seeds: np.ndarray) -> dict:
+        """Counterfactual trials (issue 40): for each row m (its truth by L's names, and
+        its seed), one trial of every job (probe action, load) with Y at `belief`, each in
+        a freshly built world; trial m of every job replays the same seeded world (the
+        common random numbers the domains' T* estimates rely on). Returns ``successes``
+        (M, J) int8: 1 a success, 0 a failure, -1 a context the probe could not reach;
+        ``node`` (where it ran)."""
+        from .probe import trial_by_names
+
+        opts = dict(self.options)
+        n_blocks = int(opts.pop("n_blocks", self.domain.n_objects))
+        out = np.zeros((len(truths), len(jobs)), dtype=np.int8)
+        for m, (truth, seed) in enumerate(zip(truths, np.asarray(seeds).tolist())):
+            for j, (action, load_k) in enumerate(jobs):
+                rng = np.random.default_rng(np.random.SeedSequence(int(seed)))
+                ok = trial_by_names(action, int(load_k), rng, domain=self.domain_name,
+                                    n_blocks=n_blocks, options=opts, truth=truth, belief=belief)
+                out[m, j] = -1 if ok is None else int(ok)
+        return {"successes": out, "node": self.where()}
 
     def where(self) -> dict:
         """The Ray node (``local`` outside Ray), host name and process of this shard."""

@@ -294,6 +294,10 @@ class TransitionRow(BaseModel):
                                                          "this context (1: reality agrees with the particle "
                                                          "worlds so far; near 0: it contradicts them); "
                                                          "null without simulated counts")
+    counterfactual_discount: float | None = Field(
+        None, description="the share of the counterfactual snapshot's counts T uses in this action's "
+                          "contexts (one power prior per action; counterfactual_rows): 1 before any real "
+                          "outcome contradicts the worlds; null without a snapshot")
 
 
 class TransitionView(BaseModel):

@@ -24,7 +24,7 @@ _FLAG_FIELDS = {"domain": "--domain", "agent": "--agent", "particles": "--partic
                 "engine": "--engine", "reality_engine": "--reality-engine",
                 "sensor_noise": "--sensor-noise", "sensor_bias": "--sensor-bias",
                 "sensor_tails": "--sensor-tails", "perception_sigma": "--perception-sigma",
-                "n_blocks": "--objects"}
+                "n_blocks": "--objects", "counterfactual_rows": "--counterfactual"}
 
 
 def register(sub) -> None:
@@ -81,6 +81,11 @@ def register(sub) -> None:
     p.add_argument("--perception-sigma", type=float, default=None, metavar="M",
                    help=f"std (m) of the simulated reality's perceived planar object positions; "
                         f"0: exact (default {d.perception_sigma:g})")
+    p.add_argument("--counterfactual", type=int, default=None, metavar="M", dest="counterfactual_rows",
+                   help=f"counterfactual experience: before each episode's first plan, M rows drawn from "
+                        f"the belief each simulate every context the domain declares, and T learns from "
+                        f"them (a power prior per action family); 0: off, the paper's loop "
+                        f"(default {d.counterfactual_rows})")
     p.add_argument("--shards", type=int, default=None, help="shard actors (default: one per CPU)")
     p.add_argument("--ray-address", default=None, help="join a running Ray cluster")
     p.add_argument("--out", default="runs/latest", help="output directory")

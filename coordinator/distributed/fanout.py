@@ -265,8 +265,31 @@ class ShardPool:
         out["reruns"] = reruns
         return out
 
+    def probe_rows(self, jobs: list, truths: list[dict], belief: dict, seeds: np.ndarray) -> dict:
+        """Counterfactual trials of every job for every row (``Shard.probe_rows``), the rows
+        split over the shards as particles are; ``successes`` (M, J) in row order (1, 0, or
+        -1: not reached), the same on any split (each trial has its own seed and a freshly built world)."""
+        jobs = [(str(a), int(k)) for a, k in jobs]
+        seeds = np.asarray(seeds, dtype=np.int64)
+        if self._local is not None:
+            parts = [self._local.probe_rows(jobs, truths, belief, seeds)]
+        else:
+            parts, _ = self._fan_out_slices(
+                len(truths), lambda s, a, b: s.actor.probe_rows.remote(jobs, truths[a:b], belief, seeds[a:b]))
+        self.timings["calls"] += 1
+        return {"successes": np.concatenate([p["successes"] for p in parts])}
+
     def _fan_out(self, start, sizes, action, traj, starts) -> tuple[list[dict], int]:
-        """One call per shard; a slice whose node is lost is re-split over the survivors."""
+        """One simulate call per shard (``_fan_out_slices``)."""
+        def call(s: _ShardRef, a: int, b: int):
+            tr = traj if traj.ndim == 2 else traj[a:b]
+            return s.actor.simulate_batch.remote(start, sizes[a:b], action, tr, starts[a:b])
+
+        return self._fan_out_slices(len(sizes), call)
+
+    def _fan_out_slices(self, n: int, call) -> tuple[list[dict], int]:
+        """One call per shard (``call(shard, lo, hi)``: the remote call for rows lo..hi);
+        a slice whose node is lost is re-split over the survivors."""
         import ray
 
         pending: dict = {}                # ref -> (lo, hi, shard)
@@ -275,11 +298,9 @@ class ShardPool:
             bounds = np.linspace(lo, hi, len(shards) + 1).astype(int)
             for s, a, b in zip(shards, bounds[:-1], bounds[1:]):
                 if b > a:
-                    tr = traj if traj.ndim == 2 else traj[a:b]
-                    ref = s.actor.simulate_batch.remote(start, sizes[a:b], action, tr, starts[a:b])
-                    pending[ref] = (a, b, s)
+                    pending[call(s, a, b)] = (a, b, s)
 
-        submit(0, len(sizes), list(self._shards))
+        submit(0, n, list(self._shards))
         parts: dict[int, dict] = {}
         reruns = 0
         t0 = time.perf_counter()

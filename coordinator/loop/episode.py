@@ -33,6 +33,8 @@ class EpisodeStats:
     rejuvenations: int = 0            # unexplained observations that redrew particles from the prior
     redrawn_particles: int = 0        # rows redrawn over them
     dead_end: str | None = None       # why the planner found no way to the goal (episode ended there)
+    counterfactual_trials: int = 0    # world trials of the counterfactual snapshot (issue 40)
+    counterfactual_s: float = 0.0     # and their wall time
 
     def count_update(self, informative: bool, redrawn: int) -> None:
         """Tally one belief update: informative or not, and the rows lock-in redrew."""
@@ -84,6 +86,9 @@ class EpisodeStats:
             "redrawn_particles": self.redrawn_particles,
             # the observed state from which no plan reaches the goal (None: none met)
             "dead_end": self.dead_end,
+            # the counterfactual snapshot's world trials (rows x contexts) and wall time
+            "counterfactual_trials": self.counterfactual_trials,
+            "counterfactual_s": self.counterfactual_s,
         }
 
 

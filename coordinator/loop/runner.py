@@ -101,6 +101,9 @@ class _Tallied:
         self.tally.add(out)
         return out
 
+    def probe_rows(self, *args, **kwargs) -> dict:
+        return self.pool.probe_rows(*args, **kwargs)
+
 
 def run(config: RunConfig, *, ray_address: str | None = None,
         on_episode: Callable[[dict, Session, dict], None] | None = None,

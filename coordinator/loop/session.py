@@ -30,13 +30,14 @@ from .checkpoint import restore_session, session_checkpoint
 from .episode import EpisodeStats, utility_terms
 from .observer import Prediction, RunObserver, StepEvent
 from .particle_worlds import predictions, simulate_rows
+from ..transition.counterfactual import Counterfactual, row_properties, simulate as simulate_counterfactual
 from ..transition.experience import ExperiencePool
 from ..baselines.grounding_bandit import GroundingBandit
 from ..particle_filter import Belief, ParticleFilter, RealStep, Reweighting
 from ..particle_filter.belief import symbolic_log_likelihood
 from .reality import Observation
 from .real_pose import real_pose
-from ..run_config import AGENT_STREAM, RunConfig, seed_stream
+from ..run_config import AGENT_STREAM, COUNTERFACTUAL_STREAM, RunConfig, seed_stream
 from .step_record import step_record
 from .transit import plan_pre_pose_transit
 from ..transition.transition_model import TransitionModel, transition_table
@@ -95,6 +96,8 @@ class Session:
         if belief is not None and config.known_properties:
             self.belief = self._point_belief(config)
         self.experience = ExperiencePool(self.task.context_of)
+        # The counterfactual snapshot T uses (issue 40), made before each episode's first plan.
+        self.counterfactual: Counterfactual | None = None
         self.transition = self._transition_model()
         self.episode = 0
         self.episodes: list[dict] = []
@@ -153,7 +156,26 @@ class Session:
             self.experience, self.n_blocks,
             sim_weight=self.config.sim_weight if self.agent.sim_experience else 0.0,
             contexts=self.task.contexts(self.n_blocks), context_fn=self.task.context_of,
-            discount=self.config.sim_discount == "power_prior")
+            discount=self.config.sim_discount == "power_prior",
+            counterfactual=self.counterfactual.counts if self.counterfactual is not None else None)
+
+    def _refresh_counterfactual(self) -> None:
+        """Before an episode's first plan: the counterfactual snapshot of the belief as it is
+        now (``coordinator.transition.counterfactual``), and T rebuilt with it. Only for an
+        agent that learns from simulation, with a belief and worlds to ask."""
+        m = self.config.counterfactual_rows
+        if (m < 1 or not self.agent.sim_experience or self.belief is None or self.shard_pool is None
+                or (self.counterfactual is not None and self.counterfactual.episode == self.episode)):
+            return
+        seed = np.random.SeedSequence(self.config.seed, spawn_key=(COUNTERFACTUAL_STREAM, self.episode))
+        k = self.n_blocks if self.per_block else 1
+        self.counterfactual = simulate_counterfactual(
+            self.shard_pool, self.domain, self.L.names, k, self.belief.particles, self.belief.weights,
+            row_properties(self.L.names, self.believed_row(), k), m, self.n_blocks,
+            self.task.contexts(self.n_blocks), seed, self.episode)
+        self.stats.counterfactual_trials += self.counterfactual.trials
+        self.stats.counterfactual_s += self.counterfactual.wall_s
+        self.transition = self._transition_model()
 
     def transition_table(self) -> list[dict]:
         """T per context, for people (``coordinator.transition.transition_model.transition_table``)."""
@@ -216,6 +238,7 @@ class Session:
             self.stats.dead_end = str(exc)[:200]
 
     def _replan(self) -> None:
+        self._refresh_counterfactual()
         t0 = time.perf_counter()
         costs = self.costs
         T = self.transition.to_planner()

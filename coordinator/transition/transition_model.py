@@ -78,6 +78,8 @@ class TransitionModel:
     # (action, context) -> the power prior's delta applied to its simulated counts (only
     # contexts with simulated evidence, and only when built with discount=True)
     discounts: dict = field(default_factory=dict, repr=False)
+    # action family -> the power prior's delta applied to its counterfactual counts
+    cf_discounts: dict = field(default_factory=dict, repr=False)
 
     def __post_init__(self) -> None:
         if int(self.n_blocks) < 1:
@@ -218,6 +220,7 @@ class TransitionModel:
         contexts: Sequence[tuple[str, int]] | None = None,
         context_fn: Callable | None = None,
         discount: bool = False,
+        counterfactual: dict | None = None,
     ) -> "TransitionModel":
         """T rebuilt from a pool: real evidence at weight 1, simulated at weight * sim_weight.
 
@@ -267,7 +270,34 @@ class TransitionModel:
                                          s * sim_weight, n * sim_weight)
                     model.discounts[(name, ctx)] = delta
                 model.add_counts(name, ctx, s * sim_weight * delta, n * sim_weight * delta)
+        if counterfactual:
+            model.add_counterfactual(counterfactual, counts["real"], discount)
         return model
+
+    def add_counterfactual(self, counts: dict, real: dict, discount: bool = True) -> None:
+        """Add a counterfactual snapshot's (successes, trials) per context
+        (``coordinator.transition.counterfactual``), each action family's scaled by its
+        power prior's delta against the `real` counts (``family_discount``; 1 without
+        `discount`), which ``cf_discounts`` records per family.
+
+        >>> from planner.container import TASK
+        >>> t = TransitionModel.for_task(TASK, 2)
+        >>> t.add_counterfactual({("push", 1): (4.0, 4.0), ("push", 2): (1.0, 4.0)}, {})
+        >>> round(t.probability("push", 2), 2), t.cf_discounts["push"]      # untried, yet 0.4
+        (0.4, 1.0)
+        >>> t = TransitionModel.for_task(TASK, 2)        # reality failed push 1 five times
+        >>> t.add_counts("push", 1, 0.0, 5.0)
+        >>> t.add_counterfactual({("push", 1): (4.0, 4.0), ("push", 2): (1.0, 4.0)}, {("push", 1): (0.0, 5.0)})
+        >>> round(t.cf_discounts["push"], 2), round(t.probability("push", 2), 2)
+        (0.15, 0.72)
+        """
+        families = sorted({name for name, _ in counts})
+        for family in families:
+            mine = {c: v for c, v in counts.items() if c[0] == family}
+            delta = family_discount(real, mine) if discount else 1.0
+            self.cf_discounts[family] = delta
+            for (name, k), (cs, cn) in mine.items():
+                self.add_counts(name, k, cs * delta, cn * delta)
 
 
 # delta's grid: 0, 0.05, ..., 1 (a finer one moves T by under 0.005 in the doctest's cases).
@@ -293,12 +323,36 @@ def sim_discount(real_successes: float, real_trials: float, sim_successes: float
     >>> round(sim_discount(0, 5, 5, 5), 3), round(sim_discount(4, 5, 4.2, 5), 3)
     (0.118, 0.553)
     """
-    rf = real_trials - real_successes
-    if real_trials <= 0:
+    return family_discount({0: (real_successes, real_trials)}, {0: (sim_successes, sim_trials)})
+
+
+def family_discount(real: dict, simulated: dict) -> float:
+    """The power prior's delta shared by one action family's contexts: the posterior mean
+    of delta under a uniform prior, the real outcomes' marginal likelihood being the product
+    over the family's contexts of ``sim_discount``'s (a context without real trials adds
+    nothing). One delta per family carries the agreement seen in tried contexts to untried
+    ones, where there is no real outcome to judge the worlds by. `real` and `simulated` map
+    (action, context) to (successes, trials).
+
+    >>> round(family_discount({}, {("push", 3): (1.0, 8.0)}), 3)
+    1.0
+    >>> sim = {("push", 1): (8.0, 8.0), ("push", 2): (8.0, 8.0), ("push", 3): (1.0, 8.0)}
+    >>> agree, gap = {("push", 1): (3.0, 3.0)}, {("push", 1): (0.0, 3.0)}
+    >>> round(family_discount(agree, sim), 3), round(family_discount(gap, sim), 3)
+    (0.556, 0.121)
+    """
+    log_ml = np.zeros_like(_DELTAS)
+    seen = False
+    for ctx, (cs, cn) in simulated.items():
+        rs, rn = real.get(ctx, (0.0, 0.0))
+        if rn <= 0:
+            continue
+        seen = True
+        a = _REFERENCE + _DELTAS * cs
+        b = _REFERENCE + _DELTAS * (cn - cs)
+        log_ml += _log_beta(a + rs, b + rn - rs) - _log_beta(a, b)
+    if not seen:
         return 1.0
-    a = _REFERENCE + _DELTAS * sim_successes
-    b = _REFERENCE + _DELTAS * (sim_trials - sim_successes)
-    log_ml = _log_beta(a + real_successes, b + rf) - _log_beta(a, b)
     w = np.exp(log_ml - log_ml.max())
     return float(np.dot(w, _DELTAS) / w.sum())
 
@@ -316,5 +370,6 @@ def transition_table(T: TransitionModel, experience) -> list[dict]:
         rows.append({"action": name, "context": int(k), "p": T.probability(name, k),
                      "successes": float(T.successes[name][i]), "trials": float(T.trials[name][i]),
                      "real_successes": float(rs), "real_trials": float(rn),
-                     "sim_discount": T.discounts.get((name, k))})
+                     "sim_discount": T.discounts.get((name, k)),
+                     "counterfactual_discount": T.cf_discounts.get(name)})
     return rows

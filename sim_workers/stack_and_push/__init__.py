@@ -310,8 +310,9 @@ class StackAndPushDomain(PhysicsDomain):
     probe_actions = probes.PROBE_ACTIONS
 
     def probe_trial(self, action: str, true_size: float, believed_size: float, load_k: int,
-                    rng: np.random.Generator, believed_density: float | None = None) -> bool:
-        """One seeded trial of `action` in this (already jittered) world."""
+                    rng: np.random.Generator, believed_density: float | None = None) -> bool | None:
+        """One seeded trial of `action` in this (already jittered) world (None: a built
+        tower's context was not reached)."""
         return probes.probe_trial(self, action, true_size, believed_size, load_k, rng, believed_density)
 
     def probe_loads(self, action: str) -> range:

@@ -60,7 +60,7 @@ def tower_configuration(domain, sizes: np.ndarray, load_k: int, rng: np.random.G
 
 
 def probe_trial(domain, action: str, true_size: float, believed_size: float, load_k: int,
-                rng: np.random.Generator, believed_density: float | None = None) -> bool:
+                rng: np.random.Generator, believed_density: float | None = None) -> bool | None:
     """pickup: one random block from the supply row; stack: one more block onto a tower of
     `load_k`; push: a tower of `load_k` to the goal; stand: a tower of `load_k` left alone.
     The truth's density is the domain's (option ``density``); Y believes
@@ -124,10 +124,12 @@ def built_tower(world: GroundedWorld, domain, truth: dict, believed: dict, load_
 
 
 def built_probe_trial(domain, action: str, true_size: float, believed_size: float, load_k: int,
-                      rng: np.random.Generator, believed_density: float | None = None) -> bool:
+                      rng: np.random.Generator, believed_density: float | None = None) -> bool | None:
     """`stack` onto, or `push` of, a tower of `load_k` that the agent's actions built (what
     T* must judge: the issue-24 finding was a synthetic tower of 6 pushed 18/40 times while
-    the agent's own towers of 6 went 8/8). A tower that cannot be built fails the trial."""
+    the agent's own towers of 6 went 8/8). A tower that cannot be built is None: the context
+    was not reached (``sim_workers.probe.run_trial``, and so T*, counts it a failure; a
+    counterfactual snapshot leaves it out)."""
     n = domain.spec.n_blocks
     if action == "stack" and not 0 <= load_k < n:
         raise ValueError(f"load: stack onto a tower of {load_k} needs a free block (0..{n - 1})")
@@ -140,8 +142,8 @@ def built_probe_trial(domain, action: str, true_size: float, believed_size: floa
                 "density": domain.spec.density if believed_density is None else float(believed_density)}
     with make_world(domain) as world:
         config = built_tower(world, domain, truth, believed, load_k, rng)
-        if config is None:
-            return False
+        if config is None:          # the context was not reached (T* counts it a failure)
+            return None
         if action == "push":
             out = real_push(world, domain, config, believed, rng)
             return all(f"is_in(b{i + 1},goal)" in out.state for i in range(load_k))

@@ -207,3 +207,25 @@ def test_a_stack_and_push_robot_session_and_task_over_http(client):
     events = stream_events(client, task)
     assert events[-1]["data"]["status"] == "succeeded", events[-1]
     assert events[-2]["data"]["actions"] == 4
+
+
+def test_a_robot_session_asks_its_worlds_before_its_first_plan(client):
+    # counterfactual_rows (issue 40): the episode's first plan is made with the worlds lent,
+    # so the snapshot's trials are in the episode's record.
+    world = SimulatedReality("container", {"n_blocks": 3}, {"block_sizes": np.full(3, TRUE_SIZE)})
+    try:
+        spec = {"agent": "tmoc", "particles": 4, "episodes": 1, "max_steps": 2, "seed": 1, "n_objects": 3,
+                "counterfactual_rows": 2}
+        start = world.start_episode(np.random.default_rng(0))
+        r = client.post("/v1/sessions", json={**spec, "observation": _observation(start)})
+        assert r.status_code == 201, r.text
+        sid, step = r.json()["id"], r.json()["next"]
+        while step is not None:
+            outcome = world.execute(np.array(step["trajectory"]), step["action"])
+            body = client.post(f"/v1/sessions/{sid}/observations", json=_observation(outcome, step)).json()
+            step = body["next"]
+        jobs = 1 + 3 + 3                        # the container's pickup, stacks of 1..3, pushes of 1..3
+        assert body["episode"]["counterfactual_trials"] == 2 * jobs, body["episode"]
+        assert body["episode"]["counterfactual_s"] > 0
+    finally:
+        world.close()

@@ -17,6 +17,8 @@ BAD_TASKS = [
     ({"likelihood": "exact"}, "likelihood", "replay"),
     ({"particles": 0}, "particles", "greater than or equal to 1"),
     ({"particles": 65}, "particles", "--max-particles 64"),
+    ({"counterfactual_rows": 65}, "counterfactual_rows", "--max-particles 64"),
+    ({"counterfactual_rows": -1}, "counterfactual_rows", "greater than or equal to 0"),
     ({"episodes": 7}, "episodes", "--max-episodes 6"),
     ({"max_steps": 61}, "max_steps", "--max-steps 60"),
     ({"true_size": 1.0}, "true_size", "less than or equal"),

@@ -16,6 +16,8 @@ from coordinator.cli import main
     (["--true-size", "0.5"], "--true-size"),
     (["--domain", "kitchen"], "--domain"),
     (["--max-steps", "0"], "--max-steps"),
+    (["--counterfactual", "-1"], "--counterfactual"),
+    (["--counterfactual", "257"], "--counterfactual"),
 ])
 def test_bad_arguments_exit_2_naming_the_flag(args, flag, capsys, tmp_path):
     assert main(["run", "--out", str(tmp_path), *args]) == 2

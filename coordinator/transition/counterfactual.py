@@ -1,0 +1,126 @@
+"""Counterfactual simulated experience (issue 40): the particle worlds asked about contexts
+the robot has not tried.
+
+The paper's point of grounding objects in a physics engine is that the grounded worlds
+yield simulated experience for policy learning. The loop's own simulated experience is
+only the action being executed (``Session._reweight``), so T stays optimistic for every
+context until the robot fails in it. Before an episode's first plan, this module draws M
+rows of L from the belief, and in the world of each row runs one trial of every context the
+domain declares (``PhysicsDomain.counterfactual_jobs``: by default T*'s probes) with Y at
+the belief's mean, on the shards. The successes become T's rates in the planner's form
+(``counterfactual_rates``), and each context gets them as M trials of evidence
+(``context_counts``). A trial whose context the probe could not reach (a tower that Y, at
+the belief, could not build in that row's world) is left out of its job: a job's success
+rate is over the trials that reached it, and its context is credited only that share of
+the M trials (the shares taken through the same ``counterfactual_rates``, so a context
+derived from several jobs gets their derived share). T weighs them by a power prior per context family
+(``coordinator.transition.transition_model.family_discount``): a family whose real outcomes
+the simulations keep mispredicting (a reality gap the worlds cannot represent) loses its
+counterfactual evidence in untried contexts too.
+
+Rows are drawn with replacement in proportion to the weights (systematic resampling), so a
+row's trials count alike; trial m of every job replays the same seeded world (common random
+numbers, as the domains' T* estimates assume). Every draw comes from the episode's own seed
+sequence (the run's seed, stream ``COUNTERFACTUAL_STREAM``, the episode), so the snapshot
+depends on the seed and the belief only, not on shards, and turning it on shifts no other
+draw of the run.
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+__all__ = ["Counterfactual", "context_counts", "draw_rows", "row_properties", "simulate"]
+
+
+@dataclass
+class Counterfactual:
+    """One snapshot: per T context (action name, context) the simulated (successes,
+    trials), and what it cost."""
+
+    episode: int
+    rows: int
+    counts: dict = field(default_factory=dict)
+    trials: int = 0                # world trials run (rows x jobs)
+    wall_s: float = 0.0
+
+
+def draw_rows(weights: np.ndarray, m: int, rng: np.random.Generator) -> np.ndarray:
+    """Indices of `m` rows drawn in proportion to `weights` (systematic resampling: one
+    uniform draw, the lowest variance of the unbiased schemes).
+
+    >>> draw_rows(np.array([0.5, 0.25, 0.25]), 4, np.random.default_rng(0)).tolist()
+    [0, 0, 1, 2]
+    """
+    w = np.asarray(weights, dtype=np.float64)
+    cum = np.cumsum(w / w.sum())
+    cum[-1] = 1.0
+    u = (rng.random() + np.arange(m)) / m
+    return np.searchsorted(cum, u, side="right")
+
+
+def row_properties(names, row: np.ndarray, per_object: int) -> dict[str, float]:
+    """A row of L (property-major, `per_object` values each) as one number per property by
+    L's names: the objects' mean where L has a value per object (the probes set every
+    object alike)."""
+    row = np.asarray(row, dtype=np.float64)
+    return {name: float(np.mean(row[j * per_object:(j + 1) * per_object])) for j, name in enumerate(names)}
+
+
+def context_counts(rates: dict, contexts, trials: int,
+                   shares: dict | None = None) -> dict[tuple[str, int], tuple[float, float]]:
+    """T's contexts with the simulated evidence of `rates` (the planner's form: ``{name: p}``
+    for an action whose only context is 0, else ``{name: [p per context, in order]}``) as
+    (successes, trials) with `trials` trials each, or `trials` x the context's share in
+    `shares` (the same form; a share of 0: no evidence); contexts without a rate get none.
+
+    >>> ctx = [("pickup", 0), ("push", 1), ("push", 2)]
+    >>> context_counts({"pickup": 1.0, "push": [1.0, 0.25]}, ctx, 4)
+    {('pickup', 0): (4.0, 4.0), ('push', 1): (4.0, 4.0), ('push', 2): (1.0, 4.0)}
+    >>> context_counts({"pickup": 1.0, "push": [1.0, 0.25]}, ctx, 4, {"pickup": 1.0, "push": [0.5, 0.0]})
+    {('pickup', 0): (4.0, 4.0), ('push', 1): (2.0, 2.0)}
+    """
+    by_name: dict[str, list[int]] = {}
+    for name, k in contexts:
+        by_name.setdefault(str(name), []).append(int(k))
+    out = {}
+    for name, ks in by_name.items():
+        if name not in rates:
+            continue
+        value = rates[name]
+        ps = [value] if np.isscalar(value) else list(value)
+        share = (shares or {}).get(name, 1.0)
+        qs = [share] * len(ps) if np.isscalar(share) else list(share)
+        for k, p, q in zip(sorted(set(ks)), ps, qs):
+            n = float(trials) * float(min(1.0, max(0.0, q)))
+            if n > 0:
+                out[(name, k)] = (float(min(1.0, max(0.0, p))) * n, n)
+    return out
+
+
+def simulate(pool, physics, names, per_object: int, rows: np.ndarray, weights: np.ndarray,
+             believed: dict[str, float], m: int, n_objects: int, contexts,
+             seed: np.random.SeedSequence, episode: int) -> Counterfactual:
+    """The snapshot of M = `m` rows drawn from the belief (`rows`, `weights`) with Y at
+    `believed`, on `pool`'s shards (``ShardPool.probe_rows``)."""
+    t0 = time.perf_counter()
+    jobs = physics.counterfactual_jobs(n_objects)
+    if not jobs or m < 1:
+        return Counterfactual(episode, 0)
+    rng = np.random.default_rng(seed)
+    picked = draw_rows(weights, m, rng)
+    truths = [row_properties(names, rows[i], per_object) for i in picked]
+    trial_seeds = rng.integers(0, 2**63 - 1, size=m, dtype=np.int64)
+    outcome = np.asarray(pool.probe_rows(jobs, truths, believed, trial_seeds)["successes"])
+    reached = (outcome >= 0).sum(axis=0)
+    wins = (outcome == 1).sum(axis=0)
+    keys = [(a, int(k)) for a, k in jobs]
+    # Each job's rate over the trials that reached it, as successes out of m (a job none
+    # reached: m, which its share of 0 then drops).
+    conditional = {j: (float(w) * m / r if r else float(m)) for j, w, r in zip(keys, wins, reached)}
+    rates = physics.counterfactual_rates(conditional, m, n_objects)
+    shares = physics.counterfactual_rates({j: float(r) for j, r in zip(keys, reached)}, m, n_objects)
+    return Counterfactual(episode, m, context_counts(rates, contexts, m, shares), m * len(jobs),
+                          time.perf_counter() - t0)
