@@ -32,6 +32,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..particle_filter.belief import systematic_resample
+
 __all__ = ["Counterfactual", "context_counts", "draw_rows", "row_properties", "simulate"]
 
 
@@ -48,17 +50,13 @@ class Counterfactual:
 
 
 def draw_rows(weights: np.ndarray, m: int, rng: np.random.Generator) -> np.ndarray:
-    """Indices of `m` rows drawn in proportion to `weights` (systematic resampling: one
-    uniform draw, the lowest variance of the unbiased schemes).
+    """Indices of `m` rows drawn in proportion to `weights`: the belief's own systematic
+    resampling (one uniform draw, the lowest variance of the unbiased schemes).
 
     >>> draw_rows(np.array([0.5, 0.25, 0.25]), 4, np.random.default_rng(0)).tolist()
     [0, 0, 1, 2]
     """
-    w = np.asarray(weights, dtype=np.float64)
-    cum = np.cumsum(w / w.sum())
-    cum[-1] = 1.0
-    u = (rng.random() + np.arange(m)) / m
-    return np.searchsorted(cum, u, side="right")
+    return systematic_resample(weights, rng, m)
 
 
 def row_properties(names, row: np.ndarray, per_object: int) -> dict[str, float]:
