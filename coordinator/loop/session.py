@@ -30,7 +30,8 @@ from .checkpoint import restore_session, session_checkpoint
 from .episode import EpisodeStats, utility_terms
 from .observer import Prediction, RunObserver, StepEvent
 from .particle_worlds import predictions, simulate_rows
-from ..transition.counterfactual import Counterfactual, row_properties, simulate as simulate_counterfactual
+from ..transition.counterfactual import (REFRESH_ESS_FRACTION, Counterfactual, ess_fraction, row_properties,
+                                        simulate as simulate_counterfactual)
 from ..transition.experience import ExperiencePool
 from ..baselines.grounding_bandit import GroundingBandit
 from ..particle_filter import Belief, ParticleFilter, RealStep, Reweighting
@@ -96,7 +97,8 @@ class Session:
         if belief is not None and config.known_properties:
             self.belief = self._point_belief(config)
         self.experience = ExperiencePool(self.task.context_of)
-        # The counterfactual snapshot T uses (issue 40), made before each episode's first plan.
+        # The counterfactual snapshot T uses (issue 40): before each episode's first plan, and
+        # redrawn at a replan once the belief has moved from it.
         self.counterfactual: Counterfactual | None = None
         self.transition = self._transition_model()
         self.episode = 0
@@ -160,19 +162,29 @@ class Session:
             counterfactual=self.counterfactual.counts if self.counterfactual is not None else None)
 
     def _refresh_counterfactual(self) -> None:
-        """Before an episode's first plan: the counterfactual snapshot of the belief as it is
-        now (``coordinator.transition.counterfactual``), and T rebuilt with it. Only for an
+        """Before a plan: the counterfactual snapshot of the belief as it is now
+        (``coordinator.transition.counterfactual``), and T rebuilt with it, at an episode's
+        first plan and at a replan once the belief has moved from the snapshot's (its rows
+        worth under ``REFRESH_ESS_FRACTION`` of their number as a sample of it). Only for an
         agent that learns from simulation, with a belief and worlds to ask."""
         m = self.config.counterfactual_rows
-        if (m < 1 or not self.agent.sim_experience or self.belief is None or self.shard_pool is None
-                or (self.counterfactual is not None and self.counterfactual.episode == self.episode)):
+        if m < 1 or not self.agent.sim_experience or self.belief is None or self.shard_pool is None:
             return
-        seed = np.random.SeedSequence(self.config.seed, spawn_key=(COUNTERFACTUAL_STREAM, self.episode))
+        mean, std = self.reweighting.marginals(self.belief)
+        last, refresh = self.counterfactual, 0
+        if last is not None and last.episode == self.episode:
+            if last.mean is None or ess_fraction(last.mean, last.std, mean, std) >= REFRESH_ESS_FRACTION:
+                return
+            refresh = last.refresh + 1
+        # The episode's first snapshot keeps the key it always had; a redraw gets its own.
+        key = (COUNTERFACTUAL_STREAM, self.episode) + ((refresh,) if refresh else ())
         k = self.n_blocks if self.per_block else 1
         self.counterfactual = simulate_counterfactual(
             self.shard_pool, self.domain, self.L.names, k, self.belief.particles, self.belief.weights,
-            row_properties(self.L.names, self.believed_row(), k), m, self.n_blocks,
-            self.task.contexts(self.n_blocks), seed, self.episode)
+            row_properties(self.L.names, np.asarray(mean, dtype=np.float64), k), m, self.n_blocks,
+            self.task.contexts(self.n_blocks), np.random.SeedSequence(self.config.seed, spawn_key=key),
+            self.episode, refresh)
+        self.counterfactual.mean, self.counterfactual.std = np.array(mean), np.array(std)
         self.stats.counterfactual_trials += self.counterfactual.trials
         self.stats.counterfactual_s += self.counterfactual.wall_s
         self.transition = self._transition_model()

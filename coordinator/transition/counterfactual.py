@@ -18,6 +18,12 @@ derived from several jobs gets their derived share). T weighs them by a power pr
 the simulations keep mispredicting (a reality gap the worlds cannot represent) loses its
 counterfactual evidence in untried contexts too.
 
+Within an episode the snapshot is kept until the belief has moved enough to matter: at a
+replan (after a failure), the snapshot's rows, as an importance sample of the belief as it
+is now, would be worth fewer than half their number (``ess_fraction``, the filter's own
+resampling threshold); then a new one is drawn. The rows are a sample of the belief at the
+snapshot, so that is when they no longer stand for the belief.
+
 Rows are drawn with replacement in proportion to the weights (systematic resampling), so a
 row's trials count alike; trial m of every job replays the same seeded world (common random
 numbers, as the domains' T* estimates assume). Every draw comes from the episode's own seed
@@ -34,7 +40,13 @@ import numpy as np
 
 from ..particle_filter.belief import systematic_resample
 
-__all__ = ["Counterfactual", "context_counts", "draw_rows", "row_properties", "simulate"]
+__all__ = ["REFRESH_ESS_FRACTION", "Counterfactual", "context_counts", "draw_rows", "ess_fraction",
+           "row_properties", "simulate"]
+
+# A snapshot is redrawn when its rows would be worth fewer than this share of their number
+# as an importance sample of the belief now: the threshold the filter resamples at
+# (``Reweighting``: ESS < N / 2), for the same reason (docs/LOOP.md).
+REFRESH_ESS_FRACTION = 0.5
 
 
 @dataclass
@@ -47,6 +59,38 @@ class Counterfactual:
     counts: dict = field(default_factory=dict)
     trials: int = 0                # world trials run (rows x jobs)
     wall_s: float = 0.0
+    refresh: int = 0               # 0: the episode's first snapshot; k: its k-th redraw
+    mean: np.ndarray | None = None  # the belief's mean and std per column of L it was drawn from
+    std: np.ndarray | None = None
+
+
+def ess_fraction(mean0: np.ndarray, std0: np.ndarray, mean1: np.ndarray, std1: np.ndarray) -> float:
+    """The share of their number that draws from belief 0 are worth as an importance sample
+    of belief 1, each fitted by independent normals per column: 1 / (1 + chi^2(1 || 0)), the
+    large-sample Kish ESS over M (Kong 1992), in closed form, so it means the same for any M.
+    A column that moved or narrowed is costed exactly; one that widened to sqrt(2) x its std
+    or more, or moved off a point, gives 0 (the draws cannot cover it).
+
+    Per column, E_0[(p1 / p0)^2] = s0^2 / (s1 sqrt(2 s0^2 - s1^2)) exp(d^2 / (2 s0^2 - s1^2)).
+
+    >>> ess_fraction(np.array([0.045]), np.array([0.002]), np.array([0.045]), np.array([0.002]))
+    1.0
+    >>> round(ess_fraction(np.array([0.045]), np.array([0.002]), np.array([0.046]), np.array([0.002])), 3)
+    0.779
+    >>> ess_fraction(np.array([0.045]), np.array([0.002]), np.array([0.045]), np.array([0.0005])) < 0.5
+    True
+    """
+    m0, s0, m1, s1 = (np.asarray(a, dtype=np.float64).ravel() for a in (mean0, std0, mean1, std1))
+    log_r = 0.0
+    for a, b, u, v in zip(m0, s0, m1, s1):
+        scale = max(abs(a), abs(u), b, v)
+        if abs(u - a) <= 1e-9 * scale and abs(v - b) <= 1e-9 * scale:
+            continue        # did not move (a known property too), up to a weighted sum's rounding
+        room = 2.0 * b * b - v * v
+        if b <= 0.0 or v <= 0.0 or room <= 0.0:
+            return 0.0
+        log_r += 2.0 * np.log(b) - np.log(v) - 0.5 * np.log(room) + (u - a) ** 2 / room
+    return float(np.exp(-log_r))
 
 
 def draw_rows(weights: np.ndarray, m: int, rng: np.random.Generator) -> np.ndarray:
@@ -100,13 +144,13 @@ def context_counts(rates: dict, contexts, trials: int,
 
 def simulate(pool, physics, names, per_object: int, rows: np.ndarray, weights: np.ndarray,
              believed: dict[str, float], m: int, n_objects: int, contexts,
-             seed: np.random.SeedSequence, episode: int) -> Counterfactual:
+             seed: np.random.SeedSequence, episode: int, refresh: int = 0) -> Counterfactual:
     """The snapshot of M = `m` rows drawn from the belief (`rows`, `weights`) with Y at
     `believed`, on `pool`'s shards (``ShardPool.probe_rows``)."""
     t0 = time.perf_counter()
     jobs = physics.counterfactual_jobs(n_objects)
     if not jobs or m < 1:
-        return Counterfactual(episode, 0)
+        return Counterfactual(episode, 0, refresh=refresh)
     rng = np.random.default_rng(seed)
     picked = draw_rows(weights, m, rng)
     truths = [row_properties(names, rows[i], per_object) for i in picked]
@@ -121,4 +165,4 @@ def simulate(pool, physics, names, per_object: int, rows: np.ndarray, weights: n
     rates = physics.counterfactual_rates(conditional, m, n_objects)
     shares = physics.counterfactual_rates({j: float(r) for j, r in zip(keys, reached)}, m, n_objects)
     return Counterfactual(episode, m, context_counts(rates, contexts, m, shares), m * len(jobs),
-                          time.perf_counter() - t0)
+                          time.perf_counter() - t0, refresh)

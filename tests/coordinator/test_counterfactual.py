@@ -9,7 +9,7 @@ from coordinator.distributed.fanout import ShardPool
 from coordinator.loop.reality import Observation
 from coordinator.loop.session import Session
 from coordinator.run_config import RunConfig, stored_run_config
-from coordinator.transition.counterfactual import context_counts, draw_rows
+from coordinator.transition.counterfactual import REFRESH_ESS_FRACTION, context_counts, draw_rows, ess_fraction
 from coordinator.transition.transition_model import TransitionModel, family_discount
 from planner.container import TASK
 
@@ -18,8 +18,8 @@ from planner.container import TASK
 SIZE, N = 0.055, 4
 
 
-def _session(rows: int, pool, particles: int = 4) -> Session:
-    config = RunConfig(n_blocks=N, particles=particles, true_size=SIZE, known_properties=True,
+def _session(rows: int, pool, particles: int = 4, known: bool = True) -> Session:
+    config = RunConfig(n_blocks=N, particles=particles, true_size=SIZE, known_properties=known,
                        counterfactual_rows=rows, seed=3)
     s = Session(config, pool)
     physics = s.domain
@@ -59,6 +59,36 @@ def test_the_snapshot_is_made_once_per_episode_and_depends_on_the_seed_alone(loc
     first = a.counterfactual
     a._replan()                                  # a replan within the episode reuses it
     assert a.counterfactual is first
+
+
+def test_a_replan_redraws_the_snapshot_once_the_belief_has_moved_from_it(local_pool):
+    s = _session(2, local_pool, particles=8, known=False)
+    s.next_step()
+    first = s.counterfactual
+    assert first.refresh == 0 and first.mean is not None
+    s.belief.update(np.where(np.arange(8) == 0, 0.0, -30.0))   # the belief now sits on one row
+    s._replan()
+    again = s.counterfactual
+    assert again is not first and again.refresh == 1 and again.episode == first.episode
+    assert s.stats.counterfactual_trials == first.trials + again.trials
+    assert again.std[0] < 1e-6 < first.std[0]
+    s._replan()                                   # not moved since: kept
+    assert s.counterfactual is again
+
+
+def test_the_snapshot_is_stale_when_its_rows_stand_for_less_than_half_of_the_belief():
+    mean, std = np.array([0.045, 2400.0]), np.array([0.004, 300.0])
+    assert ess_fraction(mean, std, mean, std) == 1.0
+    # Moved by 0.8 of its std: the rows still stand for half (exp(-0.8^2) = 0.53); by 0.9 not.
+    assert ess_fraction(mean, std, mean + [0.8 * 0.004, 0.0], std) > REFRESH_ESS_FRACTION
+    assert ess_fraction(mean, std, mean + [0.9 * 0.004, 0.0], std) < REFRESH_ESS_FRACTION
+    # Narrowed 2x: kept; 3x: redrawn (the draws spread too wide to stand for it).
+    assert ess_fraction(mean, std, mean, std / [2.0, 1.0]) > REFRESH_ESS_FRACTION
+    assert ess_fraction(mean, std, mean, std / [3.0, 1.0]) < REFRESH_ESS_FRACTION
+    # Widened past sqrt(2): the draws cannot cover it.
+    assert ess_fraction(mean, std, mean, std * [1.5, 1.0]) == 0.0
+    # A known property (a point) that stays put costs nothing, rounding of its mean included.
+    assert ess_fraction(mean, np.array([0.004, 0.0]), mean + [0.0, 1e-12], np.array([0.004, 0.0])) == 1.0
 
 
 @pytest.mark.slow

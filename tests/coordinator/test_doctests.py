@@ -13,7 +13,8 @@ import pytest
 
 MODULES = ("coordinator.particle_filter.belief", "coordinator.particle_filter.likelihood",
            "coordinator.particle_filter.rejuvenation",
-           "coordinator.transition.transition_model", "coordinator.distributed.fanout")
+           "coordinator.transition.transition_model", "coordinator.transition.counterfactual",
+           "coordinator.distributed.fanout")
 
 
 @pytest.mark.parametrize("name", MODULES)
