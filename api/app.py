@@ -29,7 +29,7 @@ from .errors import add_exception_handlers, error_responses
 from .exports import Exports
 from .middleware import add_middlewares
 from .notify import Notifier
-from .routes import domains, frames, service, sessions, tasks, ui
+from .routes import domains, frames, robots, service, sessions, tasks, ui
 from .sessions import SessionManager
 from .settings import Settings
 from .store import Store
@@ -154,6 +154,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     v1.include_router(tasks.router(S.task_spec_model(*limits, settings.max_task_runtime_s)))
     v1.include_router(frames.router)
     v1.include_router(domains.router)
+    v1.include_router(robots.router)
     v1.include_router(sessions.router(S.session_create_model(*limits)))
     app.include_router(v1)
     return app

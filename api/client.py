@@ -91,6 +91,11 @@ class TMOCClient:
     def domains(self) -> list[dict]:
         return self._call("GET", "/v1/domains")["items"]
 
+    def robots(self) -> list[dict]:
+        """Every registered robot: joints and limits, and for an arm its kinematics (DH
+        parameters, base pose, flange-to-tool transform), to check trajectories with."""
+        return self._call("GET", "/v1/robots")["items"]
+
     # -- tasks ---------------------------------------------------------------------------
     def submit(self, **spec) -> str:
         """Queue a task (RunConfig fields: agent, particles, episodes, seed, domain, ...);

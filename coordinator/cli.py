@@ -18,7 +18,7 @@ from coordinator.commands import UsageError
 __all__ = ["COMMAND_MODULES", "UsageError", "build_parser", "main"]   # UsageError: old home
 
 # Order is the order shown in `tmoc --help`.
-COMMAND_MODULES = ("run", "probe", "plan", "serve", "experiment", "domains", "check_domain", "export")
+COMMAND_MODULES = ("run", "probe", "plan", "serve", "experiment", "domains", "robots", "check_domain", "export")
 
 
 def build_parser() -> argparse.ArgumentParser:

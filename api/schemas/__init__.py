@@ -9,7 +9,8 @@ from .requests import (TAG_PREFIX, ConfigurationIn, InitialObservation, StepObse
 from .responses import (TRAJECTORY_COLUMNS, BeliefSummary, BeliefView, CancelView, CurvePoint,
                         CurveView, DomainList, DomainView, EpisodeStarted, ErrorBody, FrameList,
                         FramePanel, FrameView, Health, Histogram, Joint, NextView, NodeRun,
-                        ObservationResult, Progress, PurgeView, SessionCreated, SessionList, SessionStatus,
+                        ObservationResult, Progress, PurgeView, RobotJoint, RobotList, RobotView, SessionCreated,
+                        SessionList, SessionStatus,
                         SessionView, StepView, TaskCreated, TaskList, TaskStatus, TaskView,
                         TransitionRow, TransitionView, WorkerHealth, ts)
 
@@ -19,7 +20,8 @@ __all__ = [
     "TRAJECTORY_COLUMNS", "BeliefSummary", "BeliefView", "CancelView", "CurvePoint", "CurveView",
     "DomainList", "DomainView", "EpisodeStarted", "ErrorBody", "FrameList", "FramePanel",
     "FrameView", "Health", "Histogram", "Joint", "NextView", "NodeRun", "ObservationResult",
-    "Progress", "PurgeView", "SessionCreated", "SessionList", "SessionStatus", "SessionView", "StepView",
+    "Progress", "PurgeView", "RobotJoint", "RobotList", "RobotView", "SessionCreated", "SessionList",
+    "SessionStatus", "SessionView", "StepView",
     "TaskCreated", "TaskList", "TaskStatus", "TaskView", "TransitionRow", "TransitionView",
     "WorkerHealth", "ts",
 ]

@@ -251,6 +251,35 @@ class DomainList(BaseModel):
         "installed domain plugins left out, with why (they do not load, validate or import)"))
 
 
+class RobotJoint(BaseModel):
+    name: str
+    low: float | None = Field(description="lowest position (rad, or m for a prismatic axis); null: unbounded")
+    high: float | None = Field(description="highest position; null: unbounded")
+    max_velocity: float | None = Field(description="per second; null: none declared")
+    max_acceleration: float | None = Field(description="per second squared; null: the maker publishes none")
+
+
+class RobotView(BaseModel):
+    name: str
+    kind: str = Field(description="floating (the tool point is commanded directly) or arm")
+    description: str
+    joints: list[RobotJoint]
+    dh: dict[str, float] | None = Field(None, description=(
+        "an arm's standard Denavit-Hartenberg parameters (m): d1, a2, a3, d4, d5, d6; link i's frame is "
+        "Rz(q_i) Tz(d_i) Tx(a_i) Rx(alpha_i) after link i-1's"))
+    dh_alpha: list[float] | None = Field(None, description="the twists alpha_1..6 (rad)")
+    base: list[list[float]] | None = Field(None, description="4 x 4 world pose of the arm's base frame")
+    flange_to_tool: list[list[float]] | None = Field(None, description=(
+        "4 x 4 pose of the tool point (the fingertip centre) in the flange's frame: the tool's world pose is "
+        "base @ forward(q) @ flange_to_tool"))
+    home: list[float] | None = Field(None, description="the arm's home joint positions (rad)")
+
+
+class RobotList(BaseModel):
+    items: list[RobotView]
+    total: int
+
+
 # ------------------------------------------------------------------------- dashboard views
 class FramePanel(BaseModel):
     label: str = Field(description="real, heaviest, matched or did not match")

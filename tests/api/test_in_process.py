@@ -27,6 +27,27 @@ def test_health_and_the_domains_without_ray(client):
     assert client.get("/v1/domains/nowhere").status_code == 404
 
 
+def test_the_robots_as_a_client_checks_trajectories_with_them(client):
+    """Issue 41: GET /v1/robots describes each robot; from an arm's description alone a client's
+    own forward kinematics reproduces the arm's tool pose."""
+    import numpy as np
+
+    from sim_workers.robots import robot
+    from sim_workers.robots.kinematics import DH, forward
+
+    items = client.get("/v1/robots").json()["items"]
+    assert {r["name"] for r in items} >= {"gripper", "ur5e"}
+    ur = client.get("/v1/robots/ur5e").json()
+    assert ur["kind"] == "arm" and len(ur["joints"]) == 6 and ur["joints"][2]["high"] == pytest.approx(np.pi)
+    q = np.array([0.3, -1.2, 1.4, -1.6, -1.5, 0.2])
+    mine = np.array(ur["base"]) @ forward(DH(**ur["dh"]), q) @ np.array(ur["flange_to_tool"])
+    assert np.abs(mine - robot("ur5e").tool(q)).max() < 1e-12
+    gripper = client.get("/v1/robots/gripper").json()
+    assert gripper["kind"] == "floating" and gripper["joints"][0]["low"] is None and gripper["dh"] is None
+    missing = client.get("/v1/robots/ur10")
+    assert missing.status_code == 404 and "ur5e" in missing.json()["detail"]
+
+
 @pytest.mark.parametrize("body, field", [
     ({"particles": 65}, "particles"),                      # over this server's limit
     ({"domain": "nowhere"}, "domain"),

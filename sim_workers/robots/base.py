@@ -1,0 +1,169 @@
+"""The robot declaration: base classes with defaults, and the registry by name.
+
+A robot moves the tool point the domains plan for: the fingertip centre of a two-finger
+gripper pointing down, at (x, y, z) with the fingers' yaw about the world's z axis. A
+``FloatingGripper`` moves it directly. An ``Arm`` carries the gripper on its flange: its tool
+pose is ``base @ forward(q) @ flange_to_tool``, and ``joints_for`` answers the inverse, the
+branch nearest the current joints within the limits, or ``Unreachable`` by name.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from importlib.metadata import entry_points
+
+import numpy as np
+
+from .kinematics import DH, forward, inverse, nearest
+
+__all__ = ["Arm", "FloatingGripper", "Joint", "Robot", "RobotError", "describe", "names", "register", "robot",
+           "tool_pose"]
+
+ENTRY_POINT_GROUP = "tmoc.robots"
+
+
+class RobotError(ValueError):
+    """An unknown robot name, or a declaration that is not a robot."""
+
+
+@dataclass(frozen=True)
+class Joint:
+    """One joint: position range (rad or m), speed (per s) and acceleration (per s^2) limits;
+    None where the maker publishes none."""
+
+    name: str
+    low: float
+    high: float
+    max_velocity: float | None = None
+    max_acceleration: float | None = None
+
+
+def tool_pose(x: float, y: float, z: float, yaw: float) -> np.ndarray:
+    """The 4 x 4 world pose of the tool point (x, y, z, yaw): the gripper pointing down
+    (its z axis along the world's -z), its fingers closing along its x axis turned by `yaw`.
+
+    >>> np.round(tool_pose(0.1, 0.2, 0.3, 0.0), 6).tolist()
+    [[1.0, 0.0, 0.0, 0.1], [0.0, -1.0, 0.0, 0.2], [0.0, 0.0, -1.0, 0.3], [0.0, 0.0, 0.0, 1.0]]
+    """
+    c, s = math.cos(yaw), math.sin(yaw)
+    rz = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+    t = np.eye(4)
+    t[:3, :3] = rz @ np.diag([1.0, -1.0, -1.0])       # Rx(pi): the gripper points down
+    t[:3, 3] = (x, y, z)
+    return t
+
+
+class Robot:
+    """A robot declaration. Subclasses set ``name``, ``description`` and ``joints``."""
+
+    name: str = ""
+    kind: str = ""
+    description: str = ""
+    joints: tuple[Joint, ...] = ()
+
+    @property
+    def joint_names(self) -> list[str]:
+        return [j.name for j in self.joints]
+
+    @property
+    def low(self) -> np.ndarray:
+        return np.array([j.low for j in self.joints])
+
+    @property
+    def high(self) -> np.ndarray:
+        return np.array([j.high for j in self.joints])
+
+    def describe(self) -> dict:
+        """What a client needs to check a trajectory with its own kinematics (JSON-ready)."""
+        return {"name": self.name, "kind": self.kind, "description": self.description,
+                "joints": [{"name": j.name, "low": j.low, "high": j.high, "max_velocity": j.max_velocity,
+                            "max_acceleration": j.max_acceleration} for j in self.joints]}
+
+
+class FloatingGripper(Robot):
+    """The floating two-finger gripper: its joints are the tool point's coordinates."""
+
+    name = "gripper"
+    kind = "floating"
+    description = "the service's floating two-finger gripper: the tool point (x, y, z, yaw) is commanded directly"
+    joints = (Joint("x", -math.inf, math.inf), Joint("y", -math.inf, math.inf), Joint("z", -math.inf, math.inf),
+              Joint("yaw", -math.inf, math.inf))
+
+    def joints_for(self, x: float, y: float, z: float, yaw: float, current=None) -> np.ndarray:
+        return np.array([x, y, z, yaw], dtype=np.float64)
+
+
+class Arm(Robot):
+    """A six-joint arm of the UR geometry with the gripper on its flange. Subclasses set
+    ``dh``, ``joints``, ``flange_to_tool`` and ``base`` (4 x 4 world pose of the base frame)."""
+
+    kind = "arm"
+    dh: DH
+    flange_to_tool: np.ndarray = np.eye(4)
+    base: np.ndarray = np.eye(4)
+
+    def tool(self, q: np.ndarray) -> np.ndarray:
+        """The tool's world pose (4 x 4) at joint angles `q`."""
+        return self.base @ forward(self.dh, q) @ self.flange_to_tool
+
+    def flange_target(self, tool: np.ndarray) -> np.ndarray:
+        """The flange pose in the base frame that puts the tool at world pose `tool`."""
+        return np.linalg.inv(self.base) @ tool @ np.linalg.inv(self.flange_to_tool)
+
+    def branches(self, tool: np.ndarray, wrist_hint: float = 0.0) -> np.ndarray:
+        """Every branch of the inverse for a world tool pose, (k, 6); ``Unreachable`` if none."""
+        return inverse(self.dh, self.flange_target(tool), wrist_hint)
+
+    def joints_for(self, x: float, y: float, z: float, yaw: float, current=None) -> np.ndarray:
+        """The joints that put the tool point at (x, y, z, yaw): the branch nearest `current`
+        (default: the arm's home) within the limits; ``Unreachable`` says why when none is."""
+        current = self.home if current is None else np.asarray(current, dtype=np.float64)
+        return nearest(self.branches(tool_pose(x, y, z, yaw), float(current[5])), current, self.low, self.high)
+
+    @property
+    def home(self) -> np.ndarray:
+        return np.zeros(len(self.joints))
+
+    def describe(self) -> dict:
+        d = super().describe()
+        d.update(dh={k: getattr(self.dh, k) for k in ("d1", "a2", "a3", "d4", "d5", "d6")},
+                 dh_alpha=self.dh.alpha.tolist(), base=np.asarray(self.base).tolist(),
+                 flange_to_tool=np.asarray(self.flange_to_tool).tolist(), home=self.home.tolist())
+        return d
+
+
+_REGISTRY: dict[str, Robot] = {}
+
+
+def register(declaration: Robot | type[Robot]) -> Robot:
+    """Add a robot (a ``Robot`` subclass or instance) under its ``name``; returns it."""
+    bot = declaration() if isinstance(declaration, type) else declaration
+    if not isinstance(bot, Robot) or not bot.name:
+        raise RobotError(f"not a named Robot declaration: {declaration!r}")
+    _REGISTRY[bot.name] = bot
+    return bot
+
+
+def _load_plugins() -> None:
+    for ep in entry_points(group=ENTRY_POINT_GROUP):
+        if ep.name not in _REGISTRY:
+            register(ep.load())
+
+
+def names() -> list[str]:
+    """Every registered robot's name: the built-ins, then the installed plugins'."""
+    _load_plugins()
+    return list(_REGISTRY)
+
+
+def robot(name: str) -> Robot:
+    """The robot registered as `name`; ``RobotError`` names the known ones otherwise."""
+    if name not in _REGISTRY:
+        _load_plugins()
+    if name not in _REGISTRY:
+        raise RobotError(f"unknown robot {name!r}; known: {', '.join(names())}")
+    return _REGISTRY[name]
+
+
+def describe(name: str) -> dict:
+    return robot(name).describe()

@@ -1,0 +1,45 @@
+"""Universal Robots' UR5e with the service's two-finger gripper on its flange.
+
+Kinematics: Universal Robots' published Denavit-Hartenberg parameters of the UR5e (metres):
+d1 0.1625, a2 -0.425, a3 -0.3922, d4 0.1333, d5 0.0997, d6 0.0996. Limits from its published
+specification: every joint's working range is +-360 degrees and its speed 180 degrees/s; the
+elbow is declared +-180 degrees, as in Universal Robots' own ROS description, since beyond
+that the forearm meets the upper arm. The maker publishes no joint acceleration limit, so
+none is declared (a time parameterisation must state the one it uses).
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from .base import Arm, Joint
+from .kinematics import DH
+
+TURN = 2.0 * math.pi
+SPEED = math.pi                 # 180 degrees/s
+
+# The gripper's fingertip centre beyond the flange, along its axis: the service's fingers
+# (60 mm) and palm (20 mm), and 70 mm of coupling and actuator. A user with another gripper
+# declares their own (a subclass with its own flange_to_tool).
+TOOL_LENGTH = 0.15
+
+
+class UR5e(Arm):
+    name = "ur5e"
+    description = "Universal Robots UR5e (published DH parameters and limits), the two-finger gripper on its flange"
+    dh = DH(0.1625, -0.425, -0.3922, 0.1333, 0.0997, 0.0996)
+    joints = (Joint("shoulder_pan_joint", -TURN, TURN, SPEED),
+              Joint("shoulder_lift_joint", -TURN, TURN, SPEED),
+              Joint("elbow_joint", -math.pi, math.pi, SPEED),
+              Joint("wrist_1_joint", -TURN, TURN, SPEED),
+              Joint("wrist_2_joint", -TURN, TURN, SPEED),
+              Joint("wrist_3_joint", -TURN, TURN, SPEED))
+    flange_to_tool = np.array([[1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, TOOL_LENGTH],
+                               [0.0, 0.0, 0.0, 1.0]])
+
+    @property
+    def home(self) -> np.ndarray:
+        """Universal Robots' upright-forearm home, tool pointing down: shoulder lifted a
+        quarter turn, elbow bent a quarter turn, wrist 1 a quarter turn back."""
+        return np.array([0.0, -math.pi / 2, math.pi / 2, -math.pi / 2, -math.pi / 2, 0.0])
