@@ -155,6 +155,8 @@ def describe(name: str, **options) -> dict:
         "utility": dict(task.default_costs),
         "probe_actions": list(phys.probe_actions),
         "options": options_of(phys),
+        # where an arm's base stands (x, y, z, yaw; issue 41); None: the robot's own
+        "robot_base": list(phys.robot_base) if phys.robot_base is not None else None,
     }
 
 

@@ -53,6 +53,11 @@ class PhysicsDomain(abc.ABC):
     # every observation then failed; a time step of 1e-9 s would cost unbounded CPU).
     # Options not named here are checked for type and finiteness only.
     option_ranges: ClassVar[dict[str, tuple[float, float]]] = {}
+    # Where an arm's base stands in this scene (x, y, z, yaw in the world frame, metres and
+    # radians): a place from which it reaches every tool point the domain's trajectories use
+    # at its default object count (issue 41; tests/sim_workers/test_robots.py checks it over
+    # episodes). None: the robot's own base pose (the world origin).
+    robot_base: ClassVar[tuple[float, float, float, float] | None] = None
     # The engine this domain's worlds are built in (``sim_workers.engines``): set by
     # ``sim_workers.domains.load(..., engine=)``; None is the default engine.
     engine: str | None = None

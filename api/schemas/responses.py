@@ -242,6 +242,9 @@ class DomainView(BaseModel):
     contexts: list[list[Any]] = Field(description="T's contexts: [action, integer]")
     utility: dict[str, float]
     probe_actions: list[str]
+    robot_base: list[float] | None = Field(None, description=(
+        "where an arm's base stands in this scene: x, y, z (m), yaw (rad) in the world frame; its world pose "
+        "replaces the robot's `base` (GET /v1/robots); null: the robot's own"))
 
 
 class DomainList(BaseModel):

@@ -8,6 +8,7 @@ branch nearest the current joints within the limits, or ``Unreachable`` by name.
 """
 from __future__ import annotations
 
+import copy
 import math
 from dataclasses import dataclass
 from importlib.metadata import entry_points
@@ -16,8 +17,8 @@ import numpy as np
 
 from .kinematics import DH, forward, inverse, nearest
 
-__all__ = ["Arm", "FloatingGripper", "Joint", "Robot", "RobotError", "describe", "names", "register", "robot",
-           "tool_pose"]
+__all__ = ["Arm", "FloatingGripper", "Joint", "Robot", "RobotError", "base_pose", "describe", "names", "register",
+           "robot", "tool_pose"]
 
 ENTRY_POINT_GROUP = "tmoc.robots"
 
@@ -49,6 +50,15 @@ def tool_pose(x: float, y: float, z: float, yaw: float) -> np.ndarray:
     rz = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
     t = np.eye(4)
     t[:3, :3] = rz @ np.diag([1.0, -1.0, -1.0])       # Rx(pi): the gripper points down
+    t[:3, 3] = (x, y, z)
+    return t
+
+
+def base_pose(x: float, y: float, z: float, yaw: float) -> np.ndarray:
+    """The 4 x 4 world pose of a base standing at (x, y, z), turned `yaw` about the world's z."""
+    c, s = math.cos(yaw), math.sin(yaw)
+    t = np.eye(4)
+    t[:2, :2] = [[c, -s], [s, c]]
     t[:3, 3] = (x, y, z)
     return t
 
@@ -101,6 +111,15 @@ class Arm(Robot):
     dh: DH
     flange_to_tool: np.ndarray = np.eye(4)
     base: np.ndarray = np.eye(4)
+
+    def placed(self, base: tuple[float, float, float, float] | None) -> "Arm":
+        """This arm with its base at (x, y, z, yaw) in the world (a domain's ``robot_base``);
+        itself where `base` is None."""
+        if base is None:
+            return self
+        arm = copy.copy(self)
+        arm.base = base_pose(*base)
+        return arm
 
     def tool(self, q: np.ndarray) -> np.ndarray:
         """The tool's world pose (4 x 4) at joint angles `q`."""

@@ -116,3 +116,52 @@ def test_tmoc_robots_lists_them_and_its_json_parses(capsys):
     data = json.loads(capsys.readouterr().out)
     assert data["robots"]["gripper"]["joints"][0]["low"] is None          # unbounded: null, not Infinity
     assert data["robots"]["ur5e"]["flange_to_tool"][2][3] == 0.15
+
+
+def _episode_rows(domain: str, size: float, n: int = 8) -> list[np.ndarray]:
+    """Every executed trajectory (rows t, x, y, z, yaw, opening) of one episode at the truth."""
+    from coordinator.distributed.fanout import ShardPool
+    from coordinator.loop.reality import SimulatedReality
+    from coordinator.loop.session import Session
+    from coordinator.run_config import RunConfig
+
+    cfg = RunConfig(domain=domain, n_blocks=n, particles=2, true_size=size, known_properties=True, episodes=1,
+                    seed=0, max_steps=30)
+    pool = ShardPool(domain, {"n_blocks": n}, n_shards=0)
+    s = Session(cfg, pool)
+    reality = SimulatedReality(domain, {"n_blocks": n}, s.props_of(s.truth_row()))
+    rows: list[np.ndarray] = []
+
+    class Recorded:
+        def start_episode(self, rng):
+            return reality.start_episode(rng)
+
+        def execute(self, trajectory, action):
+            rows.append(np.asarray(trajectory))
+            return reality.execute(trajectory, action)
+    try:
+        s.run_episode(Recorded(), np.random.default_rng(0))
+    finally:
+        pool.close()
+        reality.close()
+    return rows
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("domain", ["container", "stack_and_push"])
+def test_from_the_domain_s_base_the_arm_reaches_every_tool_point_of_its_episodes(domain):
+    from coordinator.domains import load
+
+    base = load(domain).physics.robot_base
+    assert base is not None
+    arm = UR.placed(base)
+    for size in (0.033, 0.057):               # near the prior's ends: the lowest grasps, the tallest piles
+        rows = np.concatenate(_episode_rows(domain, size))       # key poses, up to 0.5 m apart
+        q = arm.joints_for(*rows[0, 1:5], arm.home)
+        branch = np.sign(q[[2, 4]])
+        for row in rows:
+            q = arm.joints_for(*row[1:5], q)
+            assert np.abs(arm.tool(q) - tool_pose(*row[1:5])).max() < 1e-9
+            # one elbow and one wrist branch all episode: the arm never passes through the
+            # elbow's or the wrist's singularity between two key poses
+            assert (np.sign(q[[2, 4]]) == branch).all(), (domain, size, row, q)
