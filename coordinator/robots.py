@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import math
 
-from sim_workers.robots import RobotError, names, robot
+from sim_workers.robots import RobotError, broken, names, robot
 
-__all__ = ["RobotError", "describe", "names", "robot"]
+__all__ = ["RobotError", "broken", "describe", "names", "robot"]
 
 
 def _jsonable(x):

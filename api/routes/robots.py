@@ -14,10 +14,10 @@ router = APIRouter()
 async def list_robots():
     """Every registered robot (built-in and installed plugins): its joints and limits and,
     for an arm, what a client needs to check a trajectory with its own kinematics."""
-    from coordinator.robots import describe, names
+    from coordinator.robots import broken, describe, names
 
     items = [describe(n) for n in names()]          # declarations: no I/O, microseconds
-    return {"items": items, "total": len(items)}
+    return {"items": items, "total": len(items), "broken": broken()}
 
 
 @router.get("/robots/{name}", response_model=S.RobotView, tags=["robots"], responses=error_responses(404))

@@ -281,6 +281,8 @@ class RobotView(BaseModel):
 class RobotList(BaseModel):
     items: list[RobotView]
     total: int
+    broken: dict[str, str] = Field(default_factory=dict, description=(
+        "installed robot plugins left out, with why (they do not load or are not robots)"))
 
 
 # ------------------------------------------------------------------------- dashboard views

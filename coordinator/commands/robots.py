@@ -1,6 +1,7 @@
 """`tmoc robots [--json]`: every registered robot (built-in or installed plugin): its joints
 with their limits, and for an arm its Denavit-Hartenberg parameters, base pose, flange-to-tool
-transform and home, so that a client can check a trajectory with its own kinematics."""
+transform and home, so that a client can check a trajectory with its own kinematics; then
+every installed plugin left out as broken, with why (JSON: "broken")."""
 from __future__ import annotations
 
 import argparse
@@ -19,11 +20,12 @@ def _limit(x: float | None, unbounded: str = "-") -> str:
 
 
 def main(args) -> int:
-    from coordinator.robots import describe, names
+    from coordinator.robots import broken, describe, names
 
     described = {name: describe(name) for name in names()}
+    left_out = broken()
     if args.json:
-        print(json.dumps({"robots": described}, indent=2, sort_keys=True))
+        print(json.dumps({"robots": described, "broken": left_out}, indent=2, sort_keys=True))
         return 0
     for name, d in described.items():
         print(f"{name}  ({d['kind']})  {d['description']}")
@@ -34,4 +36,6 @@ def main(args) -> int:
         if "dh" in d:
             print("  DH            " + ", ".join(f"{k} {v:g}" for k, v in d["dh"].items()))
             print(f"  tool          {d['flange_to_tool'][2][3]:g} m beyond the flange")
+    for name, why in sorted(left_out.items()):
+        print(f"{name}  (broken plugin, left out)  {why}")
     return 0

@@ -10,7 +10,7 @@ through the ``tmoc.robots`` entry point group (a ``Robot`` subclass or instance)
 """
 from __future__ import annotations
 
-from .base import Arm, FloatingGripper, Joint, Robot, RobotError, describe, names, register, robot  # noqa: F401
+from .base import Arm, FloatingGripper, Joint, Robot, RobotError, broken, describe, names, register, robot  # noqa: F401
 from .kinematics import DH, Unreachable  # noqa: F401
 from .ur5e import UR5e
 

@@ -17,8 +17,8 @@ import numpy as np
 
 from .kinematics import DH, forward, inverse, nearest
 
-__all__ = ["Arm", "FloatingGripper", "Joint", "Robot", "RobotError", "base_pose", "describe", "names", "register",
-           "robot", "tool_pose"]
+__all__ = ["Arm", "FloatingGripper", "Joint", "Robot", "RobotError", "base_pose", "broken", "describe", "names",
+           "register", "robot", "tool_pose"]
 
 ENTRY_POINT_GROUP = "tmoc.robots"
 
@@ -152,6 +152,8 @@ class Arm(Robot):
 
 
 _REGISTRY: dict[str, Robot] = {}
+_BROKEN: dict[str, str] = {}        # installed plugins left out, with why
+_SEEN: set[str] = set()             # entry points already loaded (or left out)
 
 
 def register(declaration: Robot | type[Robot]) -> Robot:
@@ -164,9 +166,22 @@ def register(declaration: Robot | type[Robot]) -> Robot:
 
 
 def _load_plugins() -> None:
+    """Register the installed plugins' robots once each; one that does not load is left out
+    and named by ``broken()`` (it must not hide the others)."""
     for ep in entry_points(group=ENTRY_POINT_GROUP):
-        if ep.name not in _REGISTRY:
+        if ep.name in _SEEN:
+            continue
+        _SEEN.add(ep.name)
+        try:
             register(ep.load())
+        except Exception as exc:  # noqa: BLE001 - a broken plugin is reported, not raised
+            _BROKEN[ep.name] = f"{type(exc).__name__}: {exc}"
+
+
+def broken() -> dict[str, str]:
+    """Installed robot plugins left out, with why."""
+    _load_plugins()
+    return dict(_BROKEN)
 
 
 def names() -> list[str]:

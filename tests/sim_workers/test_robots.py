@@ -108,6 +108,22 @@ def test_every_registered_robot_describes_what_a_client_checks_a_trajectory_with
         robot("ur10")
 
 
+def test_a_plugin_robot_is_registered_and_a_broken_one_is_named_not_raised(monkeypatch):
+    from importlib.metadata import EntryPoint
+
+    import sim_workers.robots.base as registry
+
+    plugins = [EntryPoint("ur5e_again", "sim_workers.robots.ur5e:UR5e", registry.ENTRY_POINT_GROUP),
+               EntryPoint("ghost", "no_such_robot_package:Ghost", registry.ENTRY_POINT_GROUP)]
+    monkeypatch.setattr(registry, "entry_points", lambda group: plugins if group == registry.ENTRY_POINT_GROUP else [])
+    monkeypatch.setattr(registry, "_SEEN", set())
+    monkeypatch.setattr(registry, "_BROKEN", {})
+    assert {"gripper", "ur5e"} <= set(registry.names())
+    assert "ghost" in registry.broken() and "No module named" in registry.broken()["ghost"]
+    with pytest.raises(RobotError, match="unknown robot 'ghost'"):
+        registry.robot("ghost")
+
+
 def test_tmoc_robots_lists_them_and_its_json_parses(capsys):
     assert main(["robots"]) == 0
     out = capsys.readouterr().out
@@ -115,7 +131,7 @@ def test_tmoc_robots_lists_them_and_its_json_parses(capsys):
     assert main(["robots", "--json"]) == 0
     data = json.loads(capsys.readouterr().out)
     assert data["robots"]["gripper"]["joints"][0]["low"] is None          # unbounded: null, not Infinity
-    assert data["robots"]["ur5e"]["flange_to_tool"][2][3] == 0.15
+    assert data["robots"]["ur5e"]["flange_to_tool"][2][3] == 0.15 and data["broken"] == {}
 
 
 def _episode_rows(domain: str, size: float, n: int = 8) -> list[np.ndarray]:
