@@ -23,9 +23,10 @@ class ContainerDomain(PhysicsDomain):
 
     name = "container"
     # An arm beside the workspace, clear of the start row and the tray's (or tower's) path:
-    # the centre of the bases from which a UR5e reaches every tool point of episodes at the
-    # prior's ends and middle (docs/SERVICE.md, Robots).
-    robot_base = (0.3, 0.4, 0.0, -math.pi / 2)
+    # on a 10 cm grid, a base from which a UR5e reaches every tool point of episodes at the
+    # prior's ends and middle in both built-in domains, as do its four neighbours
+    # (docs/SERVICE.md, Robots).
+    robot_base = (0.2, 0.4, 0.0, -math.pi / 2)
     # Only the ranges of options this scene has (``blocks.hand.BLOCK_OPTION_RANGES``).
     option_ranges = {k: v for k, v in BLOCK_OPTION_RANGES.items() if k in ContainerSpec.__dataclass_fields__}
     # No action leaves bodies out (sim_workers/reach.py), although a pickup would gain x1.4
