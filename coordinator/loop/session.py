@@ -183,8 +183,7 @@ class Session:
             self.shard_pool, self.domain, self.L.names, k, self.belief.particles, self.belief.weights,
             row_properties(self.L.names, np.asarray(mean, dtype=np.float64), k), m, self.n_blocks,
             self.task.contexts(self.n_blocks), np.random.SeedSequence(self.config.seed, spawn_key=key),
-            self.episode, refresh)
-        self.counterfactual.mean, self.counterfactual.std = np.array(mean), np.array(std)
+            self.episode, refresh, (mean, std))
         self.stats.counterfactual_trials += self.counterfactual.trials
         self.stats.counterfactual_s += self.counterfactual.wall_s
         self.transition = self._transition_model()

@@ -144,13 +144,16 @@ def context_counts(rates: dict, contexts, trials: int,
 
 def simulate(pool, physics, names, per_object: int, rows: np.ndarray, weights: np.ndarray,
              believed: dict[str, float], m: int, n_objects: int, contexts,
-             seed: np.random.SeedSequence, episode: int, refresh: int = 0) -> Counterfactual:
+             seed: np.random.SeedSequence, episode: int, refresh: int = 0,
+             marginals: tuple[np.ndarray, np.ndarray] | None = None) -> Counterfactual:
     """The snapshot of M = `m` rows drawn from the belief (`rows`, `weights`) with Y at
-    `believed`, on `pool`'s shards (``ShardPool.probe_rows``)."""
+    `believed`, on `pool`'s shards (``ShardPool.probe_rows``); `marginals`: the belief's mean
+    and std per column of L, kept for the redraw test."""
     t0 = time.perf_counter()
+    mean, std = (None, None) if marginals is None else (np.array(marginals[0]), np.array(marginals[1]))
     jobs = physics.counterfactual_jobs(n_objects)
     if not jobs or m < 1:
-        return Counterfactual(episode, 0, refresh=refresh)
+        return Counterfactual(episode, 0, refresh=refresh, mean=mean, std=std)
     rng = np.random.default_rng(seed)
     picked = draw_rows(weights, m, rng)
     truths = [row_properties(names, rows[i], per_object) for i in picked]
@@ -165,4 +168,4 @@ def simulate(pool, physics, names, per_object: int, rows: np.ndarray, weights: n
     rates = physics.counterfactual_rates(conditional, m, n_objects)
     shares = physics.counterfactual_rates({j: float(r) for j, r in zip(keys, reached)}, m, n_objects)
     return Counterfactual(episode, m, context_counts(rates, contexts, m, shares), m * len(jobs),
-                          time.perf_counter() - t0, refresh)
+                          time.perf_counter() - t0, refresh, mean, std)

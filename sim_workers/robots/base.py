@@ -15,7 +15,7 @@ from importlib.metadata import entry_points
 
 import numpy as np
 
-from .kinematics import DH, forward, inverse, nearest
+from .kinematics import DH, forward, inverse, nearest, rigid_inverse
 
 __all__ = ["Arm", "FloatingGripper", "Joint", "Robot", "RobotError", "base_pose", "broken", "describe", "names",
            "register", "robot", "tool_pose"]
@@ -83,6 +83,10 @@ class Robot:
     def high(self) -> np.ndarray:
         return np.array([j.high for j in self.joints])
 
+    def joints_for(self, x: float, y: float, z: float, yaw: float, current=None) -> np.ndarray:
+        """The robot's joints that put the tool point at (x, y, z, yaw), from `current`."""
+        raise NotImplementedError
+
     def describe(self) -> dict:
         """What a client needs to check a trajectory with its own kinematics (JSON-ready)."""
         return {"name": self.name, "kind": self.kind, "description": self.description,
@@ -127,7 +131,7 @@ class Arm(Robot):
 
     def flange_target(self, tool: np.ndarray) -> np.ndarray:
         """The flange pose in the base frame that puts the tool at world pose `tool`."""
-        return np.linalg.inv(self.base) @ tool @ np.linalg.inv(self.flange_to_tool)
+        return rigid_inverse(self.base) @ tool @ rigid_inverse(self.flange_to_tool)
 
     def branches(self, tool: np.ndarray, wrist_hint: float = 0.0) -> np.ndarray:
         """Every branch of the inverse for a world tool pose, (k, 6); ``Unreachable`` if none."""

@@ -19,7 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["DH", "Unreachable", "forward", "inverse", "nearest"]
+__all__ = ["DH", "Unreachable", "forward", "inverse", "nearest", "rigid_inverse"]
 
 TWO_PI = 2.0 * math.pi
 
@@ -65,7 +65,8 @@ def _link(theta: float, d: float, a: float, alpha: float) -> np.ndarray:
                      [0.0, 0.0, 0.0, 1.0]])
 
 
-def _inv(t: np.ndarray) -> np.ndarray:
+def rigid_inverse(t: np.ndarray) -> np.ndarray:
+    """The inverse of a rigid transform (4 x 4): the rotation transposed."""
     out = np.eye(4)
     out[:3, :3] = t[:3, :3].T
     out[:3, 3] = -t[:3, :3].T @ t[:3, 3]
@@ -113,6 +114,7 @@ def inverse(dh: DH, pose: np.ndarray, wrist_hint: float = 0.0, eps: float = 1e-9
     psi = math.atan2(p05[1], p05[0])
     phi = math.acos(max(-1.0, min(1.0, d4 / max(r, eps))))
     sols = []
+    t60 = rigid_inverse(t)
     for s1 in (1.0, -1.0):
         th1 = psi + s1 * phi + math.pi / 2
         c1, sn1 = math.cos(th1), math.sin(th1)
@@ -122,7 +124,6 @@ def inverse(dh: DH, pose: np.ndarray, wrist_hint: float = 0.0, eps: float = 1e-9
         for s5 in (1.0, -1.0):
             th5 = s5 * math.acos(max(-1.0, min(1.0, c5)))
             s5v = math.sin(th5)
-            t60 = _inv(t)
             if abs(s5v) < 1e-9:
                 th6 = wrist_hint
             else:
@@ -131,7 +132,7 @@ def inverse(dh: DH, pose: np.ndarray, wrist_hint: float = 0.0, eps: float = 1e-9
             t01 = _link(th1, d1, 0.0, math.pi / 2)
             t45 = _link(th5, dh.d5, 0.0, -math.pi / 2)
             t56 = _link(th6, d6, 0.0, 0.0)
-            t14 = _inv(t01) @ t @ _inv(t56) @ _inv(t45)
+            t14 = rigid_inverse(t01) @ t @ rigid_inverse(t56) @ rigid_inverse(t45)
             p13 = t14 @ np.array([0.0, -d4, 0.0, 1.0])
             n = math.hypot(p13[0], p13[1])
             c3 = (n * n - a2 * a2 - a3 * a3) / (2.0 * a2 * a3)
@@ -142,7 +143,7 @@ def inverse(dh: DH, pose: np.ndarray, wrist_hint: float = 0.0, eps: float = 1e-9
                 th2 = -math.atan2(p13[1], -p13[0]) + math.asin(max(-1.0, min(1.0, a3 * math.sin(th3) / n)))
                 t12 = _link(th2, 0.0, a2, 0.0)
                 t23 = _link(th3, 0.0, a3, 0.0)
-                t34 = _inv(t23) @ _inv(t12) @ t14
+                t34 = rigid_inverse(t23) @ rigid_inverse(t12) @ t14
                 th4 = math.atan2(t34[1, 0], t34[0, 0])
                 sols.append([_wrap(x) for x in (th1, th2, th3, th4, th5, th6)])
     if not sols:
