@@ -71,7 +71,6 @@ def _spec_fields(exclude: set[str], max_particles: int, max_episodes: int, max_s
         if name in exclude or name in _CLI_ONLY:
             continue
         fields[name] = (info.annotation, info)
-    fields["costs"] = (StrictCosts, Field(default_factory=StrictCosts))
     # The engines this server has installed (a schema-valid request is never refused for one).
     from coordinator.engines import ENGINES, default_engine, installed
     have = tuple(e for e in ENGINES if installed(e))
@@ -146,6 +145,27 @@ def _domain_models(domain: str) -> tuple[type[BaseModel], type[BaseModel]]:
                                            "agent knows.", truth))
 
 
+def _costs_model(domain: str) -> type[BaseModel]:
+    """The utility terms of `domain` as a request model: its own terms, each a number in
+    [0, 10000] defaulting to the domain's value, and the block worlds' terms it does not
+    have only at their default value (a dumped config carries them; RunConfig accepts
+    nothing else), so that every body the schema describes is one the domain accepts."""
+    from coordinator.domains import task_half
+
+    terms = dict(task_half(domain).default_costs)
+    fields: dict[str, Any] = {k: (float, Field(float(v), ge=0, le=1e4, description=f"utility term {k!r} "
+                                               f"of {domain} (default {float(v):g})"))
+                              for k, v in terms.items()}
+    for k, info in Costs.model_fields.items():
+        if k not in terms:
+            fields[k] = (float | None, Field(None, ge=info.default, le=info.default, description=(
+                f"not a term of {domain}: accepted only at its default {info.default:g}, as a "
+                "config dumped by another domain carries it")))
+    label = "".join(w.title() for w in domain.replace("-", "_").split("_"))
+    return _strict_model(f"{label}Costs", f"Utility terms of the {domain} domain (`tmoc domains`): "
+                                          "action costs, the failure penalty and its rewards.", fields)
+
+
 def _per_domain(name: str, doc: str, fields: dict, with_truth: bool) -> Any:
     """The union of one request model per registered domain, chosen by `domain` (default
     container): each carries that domain's `options` (and `truth`)."""
@@ -159,6 +179,8 @@ def _per_domain(name: str, doc: str, fields: dict, with_truth: bool) -> Any:
     for d in names():
         opts, truth = _domain_models(d)
         own = {**fields, "options": (opts, Field(default_factory=opts, description=opts.__doc__))}
+        costs = _costs_model(d)
+        own["costs"] = (costs, Field(default_factory=costs, description=costs.__doc__))
         phys = load(d).physics
         top = phys.max_objects
         if "n_blocks" in own:
@@ -204,9 +226,9 @@ def _per_domain(name: str, doc: str, fields: dict, with_truth: bool) -> Any:
 
 
 def spec_body(spec: BaseModel, **dump) -> dict:
-    """A request's JSON as stored: `options` and `truth` without their unset (null) fields."""
+    """A request's JSON as stored: `options`, `truth` and `costs` without their unset (null) fields."""
     body = spec.model_dump(mode="json", **dump)
-    for key in ("options", "truth"):
+    for key in ("options", "truth", "costs"):
         if isinstance(body.get(key), dict):
             body[key] = {k: v for k, v in body[key].items() if v is not None}
     return body

@@ -108,3 +108,27 @@ def test_tmoc_learns_the_friction_with_it_and_gets_better(slide_registered):
     assert abs(post["mean"] - 0.2) <= 2.5 * post["std"] and post["std"] < 0.01 and post["identified"]
     first, last = (e["utility"] for e in result["episodes"])
     assert last == 80.0 and last > first
+
+
+def test_the_http_schema_offers_each_domain_its_own_utility_terms(slide_registered):
+    """A request the published schema allows is one the domain accepts: with slide
+    installed, schemathesis sent slide the container's `all_delivered` at a value of its
+    choosing, valid under one `costs` model for every domain and refused with a 422."""
+    from pydantic import TypeAdapter, ValidationError
+
+    from api.schemas.requests import run_config, spec_body, task_spec_model
+
+    spec = TypeAdapter(task_spec_model(8, 2))
+    own = spec.json_schema()["$defs"]["SlideCosts"]
+    assert own["additionalProperties"] is False
+    free = {k for k, v in own["properties"].items() if v.get("type") == "number" and v["maximum"] == 1e4}
+    assert free == set(SlideTask.default_costs), own
+    # Its own terms at any value in range, the container's only at their defaults (as a
+    # config dumped by the container carries them): both run.
+    body = spec_body(spec.validate_python({"domain": "slide", "costs": {"place": 3, "pickup": 15}}))
+    assert run_config(body).costs.place == 3.0
+    for bad, field in (({"pickup": 16}, "pickup"), ({"all_delivered": 9999.0}, "all_delivered"),
+                       ({"bogus": 1}, "bogus")):
+        with pytest.raises(ValidationError) as err:
+            spec.validate_python({"domain": "slide", "costs": bad})
+        assert f"costs.{field}" in str(err.value), err.value
