@@ -47,6 +47,8 @@ def installed_origin(package: str) -> Path:
 
 
 def pytest_configure(config: pytest.Config) -> None:
+    # pytest-xdist declares it; declared here too for a run without it (--strict-markers).
+    config.addinivalue_line("markers", "xdist_group(name): the tests a pytest-xdist worker runs together")
     if os.environ.get("TMOC_TEST_SOURCE") == "1":
         return
     for package in PACKAGES:
@@ -68,6 +70,52 @@ def neutral_cwd(tmp_path_factory) -> Path:
     the repository root, actors would import the source tree, not the installed package.
     """
     return tmp_path_factory.mktemp("cwd")
+
+
+# -- two workers (pytest-xdist), one Ray ------------------------------------------------
+# The fast loop runs on two pytest-xdist workers (`-n 2`, with pyproject's --dist loadgroup). Every
+# module whose tests use the in-process Ray (the `ray_cluster` fixture) goes to one group,
+# run by one worker, so the session still has one local cluster; every other module is a
+# group of its own (its module-scoped fixtures are built once), the installed-product
+# modules one group (they share the wheel). The Ray group is scheduled first: it is the
+# longest unit, and the other worker fills the time with servers, installs and the rest.
+RAY_GROUP = "ray"
+
+
+def _group(item: pytest.Item, ray_modules: set[str]) -> str:
+    module = item.nodeid.split("::")[0]
+    if module in ray_modules:
+        return RAY_GROUP
+    if module.startswith("tests/installed/"):
+        return "installed"
+    return module
+
+
+@pytest.hookimpl(tryfirst=True)
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    ray_modules = {it.nodeid.split("::")[0] for it in items if "ray_cluster" in it.fixturenames}
+    for item in items:
+        if item.get_closest_marker("xdist_group") is None:
+            item.add_marker(pytest.mark.xdist_group(_group(item, ray_modules)))
+    if hasattr(config, "workerinput"):          # a pytest-xdist worker: the longest unit first
+        items.sort(key=lambda it: it.get_closest_marker("xdist_group").args[0] != RAY_GROUP)
+
+
+def _ray_is_up() -> bool:
+    ray = sys.modules.get("ray")
+    return bool(ray is not None and ray.is_initialized())
+
+
+@pytest.fixture(autouse=True)
+def _ray_only_through_the_fixture(request):
+    """A test that starts Ray in-process without asking for `ray_cluster` fails: it would
+    start a second cluster on the other worker, and outside the fixture's neutral working
+    directory Ray's workers could import the checkout instead of the installed package."""
+    before = _ray_is_up()
+    yield
+    if not before and _ray_is_up() and "ray_cluster" not in request.fixturenames:
+        pytest.fail(f"{request.node.nodeid} started Ray in-process without the ray_cluster "
+                    "fixture: add @pytest.mark.usefixtures('ray_cluster')", pytrace=False)
 
 
 @pytest.fixture(scope="session")

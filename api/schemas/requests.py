@@ -192,6 +192,13 @@ def _per_domain(name: str, doc: str, fields: dict, with_truth: bool) -> Any:
                                                       f"also spelled n_blocks"))
         if with_truth:
             own["truth"] = (truth, Field(default_factory=truth, description=truth.__doc__))
+        if "true_size" in own and "size" not in phys.L.names:
+            # No size to hide: `true_size` only at its default, as stored specs carry it
+            # (RunConfig refuses any other value, naming `truth`).
+            default = RunConfig.model_fields["true_size"].default
+            own["true_size"] = (float, Field(default, ge=default, le=default, description=(
+                f"{d} has no size in L (its truth goes in `truth`): accepted only at the "
+                f"default {default:g}")))
         if "reality_fail" in own:        # the schema names the domain's actions (issue 24)
             acts = sorted({a for a, _ in task_half(d).contexts(1)})
             own["reality_fail"] = (str | None, Field(

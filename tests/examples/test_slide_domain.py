@@ -113,7 +113,8 @@ def test_tmoc_learns_the_friction_with_it_and_gets_better(slide_registered):
 def test_the_http_schema_offers_each_domain_its_own_utility_terms(slide_registered):
     """A request the published schema allows is one the domain accepts: with slide
     installed, schemathesis sent slide the container's `all_delivered` at a value of its
-    choosing, valid under one `costs` model for every domain and refused with a 422."""
+    choosing, valid under one `costs` model for every domain and refused with a 422, then a
+    `true_size` slide has no size for."""
     from pydantic import TypeAdapter, ValidationError
 
     from api.schemas.requests import run_config, spec_body, task_spec_model
@@ -132,3 +133,7 @@ def test_the_http_schema_offers_each_domain_its_own_utility_terms(slide_register
         with pytest.raises(ValidationError) as err:
             spec.validate_python({"domain": "slide", "costs": bad})
         assert f"costs.{field}" in str(err.value), err.value
+    # The same for a size L does not hold: only its default (stored specs carry it).
+    assert spec.json_schema()["$defs"]["TaskSpecSlide"]["properties"]["true_size"]["maximum"] == 0.045
+    with pytest.raises(ValidationError, match="true_size"):
+        spec.validate_python({"domain": "slide", "true_size": 0.08})
