@@ -127,6 +127,11 @@ def _field_of(name: str, decl: dict) -> tuple:
     return (kind | None, Field(None, description=decl.get("description", ""), **bounds))
 
 
+def _label(domain: str) -> str:
+    """A domain's name as a schema component's prefix: stack_and_push -> StackAndPush."""
+    return "".join(w.title() for w in domain.replace("-", "_").split("_"))
+
+
 def _domain_models(domain: str) -> tuple[type[BaseModel], type[BaseModel]]:
     """(options, truth) request models of `domain`, from what its physics half declares
     (``http_options``, ``http_truth`` of its task half): each field independently valid,
@@ -134,7 +139,7 @@ def _domain_models(domain: str) -> tuple[type[BaseModel], type[BaseModel]]:
     from coordinator.domains import task_half
 
     task = task_half(domain)
-    label = "".join(w.title() for w in domain.replace("-", "_").split("_"))
+    label = _label(domain)
     options = {k: _field_of(k, d) for k, d in dict(task.http_options).items()}
     truth = {k: _field_of(k, d) for k, d in dict(task.http_truth).items()}
     return (_strict_model(f"{label}Options", f"Options of the {domain} domain (`tmoc domains`); "
@@ -161,8 +166,7 @@ def _costs_model(domain: str) -> type[BaseModel]:
             fields[k] = (float | None, Field(None, ge=info.default, le=info.default, description=(
                 f"not a term of {domain}: accepted only at its default {info.default:g}, as a "
                 "config dumped by another domain carries it")))
-    label = "".join(w.title() for w in domain.replace("-", "_").split("_"))
-    return _strict_model(f"{label}Costs", f"Utility terms of the {domain} domain (`tmoc domains`): "
+    return _strict_model(f"{_label(domain)}Costs", f"Utility terms of the {domain} domain (`tmoc domains`): "
                                           "action costs, the failure penalty and its rewards.", fields)
 
 
@@ -212,8 +216,7 @@ def _per_domain(name: str, doc: str, fields: dict, with_truth: bool) -> Any:
             own["domain"] = (spelled, Field(DEFAULT_DOMAIN, description=domain_info.description))
         else:
             own["domain"] = (spelled, Field(description=domain_info.description))
-        label = "".join(w.title() for w in d.replace("-", "_").split("_"))
-        model = create_model(f"{name}{label}", __base__=_SpecBase, __doc__=doc, **own)
+        model = create_model(f"{name}{_label(d)}", __base__=_SpecBase, __doc__=doc, **own)
         branches.append(Annotated[model, Tag(TAG_PREFIX + d)])
     if len(branches) == 1:
         return branches[0]
