@@ -302,3 +302,36 @@ def test_mode_above_the_exact_limit_keeps_the_exact_mode(dim):
         assert (keep & want).sum() >= 0.95 * want.sum(), trial
     # at or below the limit every particle is a candidate: the exact path, unchanged
     assert len(mode_candidates(np.full(MODE_EXACT_MAX, 1.0), MODE_EXACT_MAX)) == MODE_EXACT_MAX
+
+
+@pytest.mark.parametrize("dim", [1, 2])
+def test_binned_density_finds_the_exact_densest_particle(dim):
+    """Above MODE_EXACT_MAX, in one and two dimensions, the density comes from a grid
+    (binned KDE, linear in N, issue 42): the particle it picks has an exact density within
+    1 % of the exact maximum and lies within half a bandwidth of the exact argmax, on beliefs
+    with three modes of different weight and width, and on the prior (uniform)."""
+    from coordinator.particle_filter.belief import MODE_EXACT_MAX, _densest_binned
+    rng = np.random.default_rng(11)
+    bw = 0.003
+    n = MODE_EXACT_MAX + 988
+    for trial in range(5):
+        if trial == 4:
+            p = rng.uniform(0.03, 0.06, size=(n, dim))
+        else:
+            centres = rng.uniform(0.03, 0.06, size=(3, dim))
+            which = rng.choice(3, size=n, p=[0.5, 0.3, 0.2])
+            spread = np.array([0.002, 0.004, 0.003])
+            p = centres[which] + spread[which, None] * rng.standard_normal((n, dim))
+        w = rng.dirichlet(np.ones(n))
+        d2 = ((p[:, None, :] - p[None, :, :]) ** 2).sum(-1)
+        exact = (np.exp(-0.5 * d2 / bw ** 2) * w[None, :]).sum(1)
+        best = _densest_binned(p, w, bw)
+        assert best is not None
+        assert exact[best] >= 0.99 * exact.max(), trial
+        assert np.sqrt(d2[best, int(np.argmax(exact))]) <= 0.5 * bw, trial
+
+
+def test_binned_density_declines_a_grid_past_its_budget():
+    from coordinator.particle_filter.belief import _densest_binned
+    p = np.random.default_rng(0).uniform(0.03, 0.06, size=(1000, 4))   # (40 cells)^4 >> 4 N
+    assert _densest_binned(p, np.full(1000, 1e-3), 0.003) is None
