@@ -58,27 +58,23 @@ def one_action(session: Session, start: Observation, action: str, res: dict, loo
     session.reweighting.resample(session.belief, session.rng, action)
     t["reweight"] = time.perf_counter() - t0
     t0 = time.perf_counter()
-    session._kld_count()
+    session.filter.kld_count()
     t["budget"] = time.perf_counter() - t0
     return t
 
 
-def main() -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--domain", default="container")
-    ap.add_argument("--repeats", type=int, default=5)
-    ap.add_argument("--sizes", default="100,1000,5000")
-    ap.add_argument("--option", action="append", default=[], metavar="KEY=VALUE",
-                    help="a domain option, as on tmoc run (e.g. unknown_density=true)")
-    args = ap.parse_args()
-    options = parse_options(args.option)
-    base = Session(RunConfig(domain=args.domain, particles=8, seed=0, options=options))
+def measure(domain: str, options: dict, sizes: list[int], repeats: int,
+            with_loop: bool = True) -> tuple[dict[int, float], float]:
+    """Prints the coordinator's time per particle per action at each N in `sizes` (prior
+    and converged belief; with `with_loop`, the old per-particle Y loop too); returns
+    ({N: ms per action, prior belief}, ms of physics per particle-action of the action)."""
+    base = Session(RunConfig(domain=domain, particles=8, seed=0, options=options))
     truth = base.domain.true_properties()
     config = base.domain.initial_configuration(truth)
     start = Observation(config, base.domain.symbolic_state(config), base.domain.measurements(config))
     action = base.task.plan(start.state, base.task.optimistic_transition(base.n_blocks)).actions[0]
     # One real simulation of 8 particles, tiled to N (the physics is not what is measured).
-    shard = Shard(args.domain, {"n_blocks": base.n_blocks, **options})
+    shard = Shard(domain, {"n_blocks": base.n_blocks, **options})
     key = base.domain.action_pose(truth, config, action)
     traj = base.domain.action_trajectory(config, action, key)
     t_pre = base.domain.transit_end_time(config, action, key)
@@ -87,14 +83,14 @@ def main() -> int:
     phys_ms = (time.perf_counter() - t0) / len(base.belief.particles) * 1e3
     shard.close()
     per_action_ms: dict[int, float] = {}
-    for n in [int(v) for v in args.sizes.split(",")]:
+    for n in sizes:
         reps = np.arange(n) % len(real["states"])
         res = {"states": real["states"][reps], "measurements": real["measurements"][reps]}
         for loop_y, belief in ([(False, "prior"), (False, "converged")]
-                               + ([(True, "prior")] if n <= 1000 else [])):
+                               + ([(True, "prior")] if n <= 1000 and with_loop else [])):
             parts = {"y": [], "mode": [], "budget": [], "reweight": []}
-            for r in range(args.repeats):
-                session = Session(RunConfig(domain=args.domain, particles=n, seed=r, options=options,
+            for r in range(repeats):
+                session = Session(RunConfig(domain=domain, particles=n, seed=r, options=options,
                                             particle_budget="kld"))
                 if belief == "converged":      # 1 % of the prior wide (0.3 mm of size), as after an episode or two
                     b = session.belief
@@ -112,6 +108,19 @@ def main() -> int:
                   f"per action {total * 1e3:.1f} ms", flush=True)
             if not loop_y and belief == "prior":
                 per_action_ms[n] = total * 1e3
+    return per_action_ms, phys_ms
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--domain", default="container")
+    ap.add_argument("--repeats", type=int, default=5)
+    ap.add_argument("--sizes", default="100,1000,5000")
+    ap.add_argument("--option", action="append", default=[], metavar="KEY=VALUE",
+                    help="a domain option, as on tmoc run (e.g. unknown_density=true)")
+    args = ap.parse_args()
+    per_action_ms, phys_ms = measure(args.domain, parse_options(args.option),
+                                     [int(v) for v in args.sizes.split(",")], args.repeats)
     amdahl(per_action_ms, phys_ms, *ray_call_costs())
     return 0
 
@@ -144,20 +153,49 @@ def ray_call_costs(calls: int = 200) -> tuple[float, float]:
     return submit * 1e3, float(np.median(trips)) * 1e3
 
 
-def amdahl(per_action_ms: dict[int, float], phys_ms: float, call_ms: float, trip_ms: float) -> None:
-    """Predicted efficiency on C cores, one shard per core: an action takes the coordinator's
-    serial time, a round trip, C shard calls and ceil(N / C) particle-actions of physics;
-    on one core the same with one call and all N particle-actions."""
+CORES = (16, 64, 256, 1024)
+
+
+def action_ms(n: int, cores: int, coord_ms: float, trip_ms: float, call_ms: float, phys_ms: float,
+              dispatch: str = "node", cores_per_node: int = 16, node_call_ms: float | None = None) -> float:
+    """Predicted milliseconds of one action of `n` particles on `cores` cores, one shard per
+    core: the coordinator's serial time, the physics of ceil(n / cores) particle-actions,
+    and the Ray calls. dispatch "shard": the driver submits one call per shard (`cores`
+    calls) and waits one round trip. dispatch "node": the driver submits one call per node
+    (cores / cores_per_node), each node's dispatcher submits its cores_per_node shard calls
+    (the nodes at once), two round trips."""
+    physics = math.ceil(n / cores) * phys_ms
+    if dispatch == "shard" or cores == 1:
+        return coord_ms + trip_ms + cores * call_ms + physics
+    nodes = math.ceil(cores / cores_per_node)
+    per_node = min(cores, cores_per_node)
+    node_call = call_ms if node_call_ms is None else node_call_ms
+    return coord_ms + 2 * trip_ms + nodes * call_ms + per_node * node_call + physics
+
+
+def efficiency(n: int, cores: int, coord_ms: float, trip_ms: float, call_ms: float, phys_ms: float,
+               **kw) -> float:
+    """Throughput on `cores` cores over `cores` x the throughput of one core (one call,
+    all n particle-actions)."""
+    one = action_ms(n, 1, coord_ms, trip_ms, call_ms, phys_ms)
+    return one / (cores * action_ms(n, cores, coord_ms, trip_ms, call_ms, phys_ms, **kw))
+
+
+def amdahl(per_action_ms: dict[int, float], phys_ms: float, call_ms: float, trip_ms: float,
+           node_call_ms: float | None = None, cores_per_node: int = 16) -> None:
+    """Predicted efficiency at 16 to 1024 cores (nodes of `cores_per_node`), one call per
+    shard (before issue 42) and one call per node (now)."""
+    node_call_ms = call_ms if node_call_ms is None else node_call_ms
     print(f"Amdahl (measured: physics {phys_ms:.1f} ms per particle-action of this action, "
-          f"shard call {call_ms * 1e3:.0f} us to submit, round trip {trip_ms:.2f} ms):")
+          f"driver call {call_ms * 1e3:.0f} us to submit, dispatcher call {node_call_ms * 1e3:.0f} us, "
+          f"round trip {trip_ms:.2f} ms; nodes of {cores_per_node} cores):")
     for n, coord in per_action_ms.items():
-        one = coord + trip_ms + call_ms + n * phys_ms
-        effs = []
-        for cores in (16, 64, 256):
-            t = coord + trip_ms + cores * call_ms + math.ceil(n / cores) * phys_ms
-            effs.append(f"efficiency_{cores}={one / (cores * t):.2f}")
-        print(f"  N={n}: coordinator {coord:.1f} ms + physics {n * phys_ms:.0f} ms per action on one core; "
-              + " ".join(effs))
+        for dispatch in ("shard", "node"):
+            kw = {"dispatch": dispatch, "cores_per_node": cores_per_node, "node_call_ms": node_call_ms}
+            effs = " ".join(f"efficiency_{c}={efficiency(n, c, coord, trip_ms, call_ms, phys_ms, **kw):.2f}"
+                            for c in CORES)
+            print(f"  N={n} one call per {dispatch}: coordinator {coord:.1f} ms + physics "
+                  f"{n * phys_ms:.0f} ms per action on one core; {effs}")
 
 
 if __name__ == "__main__":

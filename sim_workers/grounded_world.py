@@ -73,6 +73,10 @@ class GroundedWorld(abc.ABC):
     """
 
     engine = ""
+    # Whether worlds of this engine may step at once on threads of one process: true where
+    # the engine's stepping calls release the GIL and share no state between worlds
+    # (``sim_workers.shard.Shard``'s ``threads``).
+    steps_in_threads = False
 
     def __new__(cls, domain: Domain, *, leave_out: bool = False, engine: str | None = None):
         # ``GroundedWorld(domain)`` is the spelling plugins and scripts were written with; it

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import os
 import resource
+from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
@@ -28,22 +29,33 @@ def decode_state(text: str) -> frozenset[str]:
 
 
 class Shard:
-    """K grounded worlds of one domain in one process; particles are dealt round-robin.
+    """K grounded worlds of one domain in one process; particles are dealt round-robin,
+    or with ``threads`` > 1 (an engine whose worlds step without the GIL: MuJoCo) one
+    contiguous run of them to each thread's world.
 
     Wrap with ``ray.remote`` (see ``remote_shard``) to run as an actor; the plain class
     runs in-process (tests, benchmarks, the probe).
     """
 
     def __init__(self, domain: str, options: dict | None = None, n_worlds: int = 1,
-                 leave_out: bool = True) -> None:
+                 leave_out: bool = True, threads: int = 1) -> None:
         if n_worlds < 1:
             raise ValueError(f"n_worlds: {n_worlds} must be at least 1")
+        if threads < 1:
+            raise ValueError(f"threads: {threads} must be at least 1")
         # Worlds are built here, inside the process that uses them: a pybullet client id
         # does not survive pickling. Particle worlds leave out the bodies an action cannot
         # reach (sim_workers/reach.py; guarded, so outcomes do not depend on it).
         self.domain = load(domain, **(options or {}))
         self.domain_name, self.options = domain, dict(options or {})
         self.worlds = [make_world(self.domain, leave_out=leave_out) for _ in range(n_worlds)]
+        # Threads only where the engine's worlds step without the GIL (MuJoCo): one world
+        # per thread, each batch cut into one contiguous run of rows per thread.
+        self.threads = threads if type(self.worlds[0]).steps_in_threads else 1
+        while len(self.worlds) < self.threads:
+            self.worlds.append(make_world(self.domain, leave_out=leave_out))
+        self._executor = ThreadPoolExecutor(self.threads, thread_name_prefix="tmoc-world") \
+            if self.threads > 1 else None
 
     def simulate(self, start: np.ndarray, sizes: np.ndarray, action: str, trajectory: np.ndarray,
                  start_time=0.0) -> dict:
@@ -65,17 +77,26 @@ class Shard:
         if not shared and traj.shape[0] != len(sizes):
             raise ValueError(f"trajectory: {traj.shape[0]} trajectories for {len(sizes)} particles")
         starts = np.broadcast_to(np.asarray(start_time, dtype=np.float64), (len(sizes),))
-        configs, states, meas, steps = [], [], [], []
-        for b, row in enumerate(sizes):
-            world = self.worlds[b % len(self.worlds)]
-            world.reset(config, self._props(row))
-            out = world.execute(traj if shared else traj[b], action, start_time=float(starts[b]))
-            configs.append(out.configuration.to_array())
-            states.append(encode_state(out.state))
-            meas.append(out.measurements)
-            steps.append(out.steps)
-        return {"configurations": np.array(configs), "states": np.array(states, dtype=object),
-                "measurements": np.array(meas), "steps": np.array(steps, dtype=np.int64)}
+
+        def run(world, rows) -> list:
+            outs = []
+            for b in rows:
+                world.reset(config, self._props(sizes[b]))
+                outs.append(world.execute(traj if shared else traj[b], action, start_time=float(starts[b])))
+            return outs
+
+        if self._executor is None:
+            outs = [run(self.worlds[b % len(self.worlds)], [b])[0] for b in range(len(sizes))]
+        else:
+            # Every particle-action starts from a reset world, so which thread's world runs
+            # a row changes nothing in its result (tests/sim_workers/test_determinism.py).
+            chunks = np.array_split(np.arange(len(sizes)), self.threads)
+            futures = [self._executor.submit(run, w, c) for w, c in zip(self.worlds, chunks) if len(c)]
+            outs = [o for f in futures for o in f.result()]
+        return {"configurations": np.array([o.configuration.to_array() for o in outs]),
+                "states": np.array([encode_state(o.state) for o in outs], dtype=object),
+                "measurements": np.array([o.measurements for o in outs]),
+                "steps": np.array([o.steps for o in outs], dtype=np.int64)}
 
     def _props(self, row: np.ndarray) -> dict:
         return self.domain.props_from_row(row)
@@ -124,6 +145,8 @@ class Shard:
         return {**self.where(), "rss_mb": rss_mb, "worlds": len(self.worlds)}
 
     def close(self) -> None:
+        if self._executor is not None:
+            self._executor.shutdown(wait=True)
         for w in self.worlds:
             w.close()
 

@@ -1,7 +1,10 @@
 """Fan-out of particle simulations to shard actors placed over the Ray cluster's nodes.
 
-One remote call per shard per action carries that shard's contiguous slice of the
-particles. Shards are stateless from the coordinator's point of view, and every
+One remote call per *node* per action carries that node's contiguous slice of the
+particles to the node's dispatcher (``coordinator.distributed.node_dispatcher``), which
+splits it over the node's shards; so the driver's serial submission grows with the nodes,
+not the cores (``dispatch="shard"``, one call per shard, is kept for comparison).
+Shards are stateless from the coordinator's point of view, and every
 particle-action runs in a freshly rebuilt world, so a batch gives bit-identical results on
 any shard of any node: that is what makes placement free and failure recovery exact.
 
@@ -41,6 +44,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from sim_workers.shard import Shard, decode_state, remote_shard
+
+from .node_dispatcher import NodeShardsLost, remote_dispatcher, slice_args
+
+DISPATCH = ("node", "shard")
 
 
 def init_ray(address: str | None = None, num_cpus: int = 2) -> dict:
@@ -95,6 +102,16 @@ class _ShardRef:
     hostname: str
 
 
+@dataclass(eq=False)
+class _NodeRef:
+    """A node's dispatcher and the shards it deals to (as of plan number `epoch`)."""
+    actor: object
+    node_id: str
+    hostname: str
+    shards: list
+    epoch: int
+
+
 class ShardPool:
     """Shard actors over the cluster's nodes (default: one per CPU of every node), or one
     in-process shard if `n_shards` is 0.
@@ -123,18 +140,34 @@ class ShardPool:
 
     def __init__(self, domain: str, options: dict | None = None,
                  n_shards: int | None = None, num_cpus: float = 1.0, check_s: float = 1.0,
-                 wait_for_cpus_s: float = 60.0) -> None:
+                 wait_for_cpus_s: float = 60.0, dispatch: str = "node", threads: int = 1) -> None:
+        if dispatch not in DISPATCH:
+            raise ValueError(f"dispatch: {dispatch!r} is not one of {', '.join(DISPATCH)}")
+        if threads < 1:
+            raise ValueError(f"threads: {threads} must be at least 1")
+        # threads > 1: each shard steps its worlds on that many threads (an engine whose
+        # worlds step without the GIL: MuJoCo; others run one) and holds that many CPUs,
+        # so a node of C CPUs gets C // threads shards.
+        self.threads = threads
         self.domain = domain
         self.options = dict(options or {})
-        self.timings = {"ray_s": 0.0, "calls": 0, "reruns": 0}
+        # ray_calls: remote calls the driver submitted; submit_s: the driver's time spent
+        # submitting them (the serial part that grows with the targets, docs/SCALING.md);
+        # node_calls, node_submit_s: the same for the dispatchers' calls to their shards.
+        self.timings = {"ray_s": 0.0, "calls": 0, "reruns": 0, "ray_calls": 0, "submit_s": 0.0,
+                        "node_calls": 0, "node_submit_s": 0.0, "plans_resent": 0}
         self.requested = n_shards
         self.num_cpus = num_cpus
         self.check_s = check_s
+        self.dispatch = dispatch
         self._shards: list[_ShardRef] = []
+        self._nodes: dict[str, _NodeRef] = {}
+        self._epoch = 0
         self._actor_cls = None
+        self._dispatcher_cls = None
         self._lock = threading.Lock()
         if n_shards == 0:
-            self._local = Shard(domain, self.options)
+            self._local = Shard(domain, self.options, threads=threads)
             return
         self._local = None
         # A cluster whose head offers no CPU may not have its workers yet (just deployed).
@@ -165,11 +198,12 @@ class ShardPool:
 
         nodes = cluster_nodes()
         alive = {n["node_id"]: n for n in nodes}
+        slots = [{**n, "cpus": max(1, n["cpus"] // self.threads) if n["cpus"] else 0} for n in nodes]
         self._drop([s for s in self._shards if s.node_id not in alive])
         with self._lock:
             have = Counter(s.node_id for s in self._shards)
             missing = []
-            for node_id in plan_shards(nodes, self.requested):
+            for node_id in plan_shards(slots, self.requested):
                 if have[node_id] > 0:
                     have[node_id] -= 1
                 else:
@@ -177,27 +211,73 @@ class ShardPool:
             if self.requested is not None:
                 missing = missing[:max(0, self.requested - len(self._shards))]
             if missing and self._actor_cls is None:
-                self._actor_cls = remote_shard(self.num_cpus)
+                self._actor_cls = remote_shard(self.num_cpus * self.threads)
             for node_id in missing:
                 actor = self._actor_cls.options(
                     scheduling_strategy=NodeAffinitySchedulingStrategy(node_id, soft=True),
-                ).remote(self.domain, self.options)
+                ).remote(self.domain, self.options, threads=self.threads)
                 self._shards.append(_ShardRef(actor, node_id, alive[node_id]["hostname"]))
+        self._sync_dispatchers()
         return len(missing)
+
+    def _sync_dispatchers(self) -> None:
+        """One dispatcher per node that has shards, holding that node's shards: created
+        for a new node, told its new shard list (a new plan number) where it changed,
+        ended where the node has no shard left."""
+        if self._local is not None or self.dispatch != "node":
+            return
+        from ray.util.scheduling_strategies import NodeAffinitySchedulingStrategy
+        import ray
+
+        with self._lock:
+            by_node: dict[str, list[_ShardRef]] = {}
+            for s in self._shards:
+                by_node.setdefault(s.node_id, []).append(s)
+            for node_id in [k for k in self._nodes if k not in by_node]:
+                self._end(self._nodes.pop(node_id).actor)
+            changed = []
+            for node_id, shards in by_node.items():
+                ref = self._nodes.get(node_id)
+                if ref is not None and len(ref.shards) == len(shards) and \
+                        all(a is b for a, b in zip(ref.shards, shards)):
+                    continue
+                self._epoch += 1
+                if ref is None:
+                    # Created empty (plan 0) and sent its shards as plan >= 1: a dispatcher
+                    # Ray restarts comes back empty, answers "stale" and is sent the plan again
+                    # (actor handles as constructor arguments would also pin them in the
+                    # object store for the restart).
+                    if self._dispatcher_cls is None:
+                        self._dispatcher_cls = remote_dispatcher()
+                    actor = self._dispatcher_cls.options(
+                        scheduling_strategy=NodeAffinitySchedulingStrategy(node_id, soft=True),
+                    ).remote()
+                    ref = self._nodes[node_id] = _NodeRef(actor, node_id, shards[0].hostname, shards, self._epoch)
+                ref.shards, ref.epoch = shards, self._epoch
+                changed.append(ref.actor.set_shards.remote([x.actor for x in shards], self._epoch))
+        if changed:
+            try:
+                ray.get(changed)
+            except ray.exceptions.RayActorError:
+                pass              # its node just left: the next call finds it gone
+
+    @staticmethod
+    def _end(actor) -> None:
+        import ray
+
+        try:
+            ray.kill(actor, no_restart=True)
+        except Exception:  # pragma: no cover - already gone
+            pass
 
     def _drop(self, shards: list[_ShardRef]) -> None:
         """Forget these shards and end their actors for good (no restart)."""
         if not shards:
             return
-        import ray
-
         with self._lock:
             self._shards = [s for s in self._shards if all(s is not d for d in shards)]
         for s in shards:
-            try:
-                ray.kill(s.actor, no_restart=True)
-            except Exception:  # pragma: no cover - already gone
-                pass
+            self._end(s.actor)
 
     def _on_dead_nodes(self, shards) -> list[_ShardRef]:
         import ray
@@ -274,62 +354,95 @@ class ShardPool:
         if self._local is not None:
             parts = [self._local.probe_rows(jobs, truths, belief, seeds)]
         else:
-            parts, _ = self._fan_out_slices(
-                len(truths), lambda s, a, b: s.actor.probe_rows.remote(jobs, truths[a:b], belief, seeds[a:b]))
+            parts, _ = self._fan_out_slices(len(truths), "probe_rows", (jobs, truths, belief, seeds), (1, 3))
         self.timings["calls"] += 1
         return {"successes": np.concatenate([p["successes"] for p in parts])}
 
     def _fan_out(self, start, sizes, action, traj, starts) -> tuple[list[dict], int]:
-        """One simulate call per shard (``_fan_out_slices``)."""
-        def call(s: _ShardRef, a: int, b: int):
-            tr = traj if traj.ndim == 2 else traj[a:b]
-            return s.actor.simulate_batch.remote(start, sizes[a:b], action, tr, starts[a:b])
+        """One simulate call per node, or per shard (``_fan_out_slices``)."""
+        sliced = (1, 3, 4) if traj.ndim == 3 else (1, 4)
+        return self._fan_out_slices(len(sizes), "simulate_batch", (start, sizes, action, traj, starts), sliced)
 
-        return self._fan_out_slices(len(sizes), call)
+    def _targets(self) -> list:
+        """Where the driver sends calls: the nodes' dispatchers, or every shard."""
+        with self._lock:          # the service's tasks share a pool: another may re-plan it
+            if self.dispatch == "node":
+                return [n for n in self._nodes.values() if n.shards]
+            return list(self._shards)
 
-    def _fan_out_slices(self, n: int, call) -> tuple[list[dict], int]:
-        """One call per shard (``call(shard, lo, hi)``: the remote call for rows lo..hi);
-        a slice whose node is lost is re-split over the survivors."""
+    def _submit(self, target, method: str, args: tuple, sliced: tuple, a: int, b: int):
+        """One remote call for rows a..b: to a node's dispatcher or straight to a shard."""
+        part_args = slice_args(args, sliced, a, b)
+        if isinstance(target, _NodeRef):
+            return target.actor.fan.remote(method, part_args, sliced, b - a, target.epoch)
+        return getattr(target.actor, method).remote(*part_args)
+
+    def _weights(self, targets: list) -> list[int]:
+        return [len(t.shards) if isinstance(t, _NodeRef) else 1 for t in targets]
+
+    def _fan_out_slices(self, n: int, method: str, args: tuple, sliced: tuple) -> tuple[list[dict], int]:
+        """``method`` over rows 0..n of the `sliced` arguments: one call per target (node
+        dispatcher or shard), each a contiguous slice sized by the target's shards; a
+        slice whose node is lost is re-split over the survivors. Returns the shards'
+        results in row order and the number of slices re-run."""
         import ray
 
-        pending: dict = {}                # ref -> (lo, hi, shard)
+        pending: dict = {}                # ref -> (lo, hi, target)
 
-        def submit(lo: int, hi: int, shards: list[_ShardRef]) -> None:
-            bounds = np.linspace(lo, hi, len(shards) + 1).astype(int)
-            for s, a, b in zip(shards, bounds[:-1], bounds[1:]):
+        def submit(lo: int, hi: int, targets: list) -> None:
+            t_sub = time.perf_counter()
+            weights = self._weights(targets)
+            cuts = np.concatenate([[0], np.cumsum(weights)])
+            bounds = np.linspace(lo, hi, int(cuts[-1]) + 1).astype(int)
+            for t, c0, c1 in zip(targets, cuts[:-1], cuts[1:]):
+                a, b = int(bounds[c0]), int(bounds[c1])
                 if b > a:
-                    pending[call(s, a, b)] = (a, b, s)
+                    pending[self._submit(t, method, args, sliced, a, b)] = (a, b, t)
+                    self.timings["ray_calls"] += 1
+            self.timings["submit_s"] += time.perf_counter() - t_sub
 
-        submit(0, n, list(self._shards))
-        parts: dict[int, dict] = {}
+        submit(0, n, self._targets())
+        parts: dict[int, list[dict]] = {}
         reruns = 0
         t0 = time.perf_counter()
         while pending:
             ready, _ = ray.wait(list(pending), num_returns=len(pending), timeout=self.check_s)
             lost_slices, lost = [], []
             for ref in ready:
-                lo, hi, s = pending.pop(ref)
+                lo, hi, t = pending.pop(ref)
                 try:
-                    part = ray.get(ref)
-                except ray.exceptions.RayActorError:      # ended for good: re-run elsewhere
+                    out = ray.get(ref)
+                except (ray.exceptions.RayActorError, NodeShardsLost):   # ended for good
                     lost_slices.append((lo, hi))
-                    lost.append(s)
+                    lost.append(t)
                     continue
-                s.node_id, s.hostname = part["node"]["node_id"], part["node"]["hostname"]
-                parts[lo] = part
+                if isinstance(t, _NodeRef):
+                    if out.get("stale"):              # restarted, or the plan not yet there
+                        self._resend_plan(t)
+                        submit(lo, hi, [t])
+                        continue
+                    reruns += out["reruns"]
+                    self.timings["node_calls"] += out["calls"]
+                    self.timings["node_submit_s"] += out["submit_s"]
+                    got = out["parts"]
+                else:
+                    got = [out]
+                if isinstance(t, _ShardRef):
+                    t.node_id, t.hostname = got[0]["node"]["node_id"], got[0]["node"]["hostname"]
+                parts[lo] = got
             if pending:                                   # still waiting: any node lost?
-                dead = self._on_dead_nodes({id(s): s for _, _, s in pending.values()}.values())
-                for ref, (lo, hi, s) in list(pending.items()):
-                    if any(s is d for d in dead):
+                dead = self._on_dead_nodes({id(t): t for _, _, t in pending.values()}.values())
+                for ref, (lo, hi, t) in list(pending.items()):
+                    if any(t is d for d in dead):
                         del pending[ref]
                         lost_slices.append((lo, hi))
                 lost += dead
             if lost_slices:
-                self._drop(lost)
-                survivors = list(self._shards)
+                self._lose(lost)
+                survivors = self._targets()
                 if not survivors:
                     self.refresh()
-                    survivors = list(self._shards)
+                    survivors = self._targets()
                 if not survivors:
                     raise RuntimeError("every node running shards was lost and no alive node "
                                        "has a CPU for a new one")
@@ -337,10 +450,32 @@ class ShardPool:
                     submit(lo, hi, survivors)
                     reruns += 1
         self.timings["ray_s"] += time.perf_counter() - t0
-        return [parts[lo] for lo in sorted(parts)], reruns
+        return [p for lo in sorted(parts) for p in parts[lo]], reruns
+
+    def _resend_plan(self, node: _NodeRef) -> None:
+        import ray
+
+        self.timings["plans_resent"] += 1
+        ray.get(node.actor.set_shards.remote([x.actor for x in node.shards], node.epoch))
+
+    def _lose(self, targets: list) -> None:
+        """Forget lost targets for good: a lost node takes its dispatcher and its shards."""
+        shards = [t for t in targets if isinstance(t, _ShardRef)]
+        for t in targets:
+            if isinstance(t, _NodeRef):
+                shards += [s for s in self._shards if s.node_id == t.node_id]
+                with self._lock:
+                    if self._nodes.get(t.node_id) is t:
+                        del self._nodes[t.node_id]
+                self._end(t.actor)
+        self._drop(shards)
+        self._sync_dispatchers()
 
     def close(self) -> None:
         if self._local is not None:
             self._local.close()
             return
+        for node in list(self._nodes.values()):
+            self._end(node.actor)
+        self._nodes.clear()
         self._drop(list(self._shards))

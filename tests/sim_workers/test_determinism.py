@@ -197,6 +197,37 @@ def test_shard_size_and_batch_split_do_not_matter(engine):
     assert len({_bits(row) for row in whole["configurations"]}) == len(SIZES)
 
 
+@pytest.mark.parametrize("action", [PICKUP, PUSH])
+def test_worlds_stepped_on_threads_give_the_serial_bits(action):
+    """Issue 42: a shard's MuJoCo worlds step at once on threads (MuJoCo releases the GIL);
+    each particle-action starts from a reset world, so the batch's bits are the serial
+    shard's, whatever the thread count. pybullet's worlds do not step in threads (one)."""
+    config, traj, t0 = _case(action)
+    start = config.to_array()
+    serial = Shard("container", {"engine": "mujoco"}, n_worlds=1)
+    threaded = {k: Shard("container", {"engine": "mujoco"}, threads=k) for k in (2, 3)}
+    try:
+        want = serial.simulate(start, SIZES, action, traj, t0)
+        for k, shard in threaded.items():
+            assert shard.threads == k and len(shard.worlds) == k
+            _assert_same(want, shard.simulate(start, SIZES, action, traj, t0))
+            # twice: the threads' worlds now have a past
+            _assert_same(want, shard.simulate(start, SIZES[::-1], action, traj, t0) and
+                         shard.simulate(start, SIZES, action, traj, t0))
+    finally:
+        serial.close()
+        for shard in threaded.values():
+            shard.close()
+    from sim_workers.engines import installed
+
+    if installed("pybullet"):
+        one = Shard("container", {"engine": "pybullet"}, threads=4)
+        try:
+            assert one.threads == 1
+        finally:
+            one.close()
+
+
 @pytest.mark.slow
 @pytest.mark.timeout(480)          # Ray's start, then ray.get waits of 180 + 180 + 60 s
 @pytest.mark.parametrize("engine", ENGINES)
