@@ -8,15 +8,16 @@ from pydantic import AfterValidator, AliasChoices, BaseModel, ConfigDict, Field,
 
 from planner.blocks.model import DEFAULT_COSTS
 from sim_workers.domains import DEFAULT_DOMAIN, Scene
-from sim_workers.engines.registry import ENGINES
+from sim_workers.engines.registry import BATCH_ENGINES, ENGINES
 
 from .agents import AGENTS
 
 # One place for each fact: the agent names are the registry's (coordinator.agents), the
 # default utility terms the task model's (planner.blocks.model.DEFAULT_COSTS).
 AgentName = Literal[tuple(AGENTS)]  # type: ignore[valid-type]
-# The engines are the registry's (sim_workers.engines.registry.ENGINES: the one list).
-EngineName = Literal[ENGINES]  # type: ignore[valid-type]
+# The engines are the registry's (sim_workers.engines.registry: ENGINES, and the batch
+# engines that step a shard's particles at once, an optional extra).
+EngineName = Literal[ENGINES + BATCH_ENGINES]  # type: ignore[valid-type]
 
 
 def _registered_domain(name: str) -> str:

@@ -16,7 +16,7 @@ import numpy as np
 
 from .configuration import Configuration
 from .domains import load
-from .engines.registry import make_world
+from .engines.registry import batch_class, make_world
 
 
 def encode_state(state: frozenset[str]) -> str:
@@ -56,6 +56,9 @@ class Shard:
             self.worlds.append(make_world(self.domain, leave_out=leave_out))
         self._executor = ThreadPoolExecutor(self.threads, thread_name_prefix="tmoc-world") \
             if self.threads > 1 else None
+        # A batch engine (MuJoCo Warp) steps the whole batch at once instead.
+        batch_cls = batch_class(getattr(self.domain, "engine", None))
+        self._batch = batch_cls(self.domain) if batch_cls is not None else None
 
     def simulate(self, start: np.ndarray, sizes: np.ndarray, action: str, trajectory: np.ndarray,
                  start_time=0.0) -> dict:
@@ -85,7 +88,10 @@ class Shard:
                 outs.append(world.execute(traj if shared else traj[b], action, start_time=float(starts[b])))
             return outs
 
-        if self._executor is None:
+        if self._batch is not None:
+            outs = self._batch.run(config, [self._props(row) for row in sizes], action,
+                                   [traj if shared else traj[b] for b in range(len(sizes))], starts)
+        elif self._executor is None:
             outs = [run(self.worlds[b % len(self.worlds)], [b])[0] for b in range(len(sizes))]
         else:
             # Every particle-action starts from a reset world, so which thread's world runs
@@ -147,6 +153,8 @@ class Shard:
     def close(self) -> None:
         if self._executor is not None:
             self._executor.shutdown(wait=True)
+        if self._batch is not None:
+            self._batch.close()
         for w in self.worlds:
             w.close()
 

@@ -64,8 +64,9 @@ def register(sub) -> None:
     p.add_argument("--reality-fail", default=None, metavar="ACTION:K",
                    help="a reality gap the particle worlds do not know: every ACTION in a T context "
                         ">= K fails in the simulated reality only, e.g. stack:3")
-    p.add_argument("--engine", default=None, metavar="pybullet|mujoco",
-                   help="the particle worlds' physics engine (default: pybullet where installed, else mujoco)")
+    p.add_argument("--engine", default=None, metavar="pybullet|mujoco|mujoco_warp",
+                   help="the particle worlds' physics engine (default: pybullet where installed, else mujoco; "
+                        "mujoco_warp: each shard's particles as one MuJoCo Warp batch, the [warp] extra)")
     p.add_argument("--reality-engine", default=None, metavar="pybullet|mujoco",
                    help="the simulated reality's physics engine (default: as --engine's default); "
                         "another engine than --engine's is a simulator that is not reality")

@@ -8,5 +8,5 @@ no domain keeps a hand-written copy of its scene per engine. Where pybullet has 
 """
 from __future__ import annotations
 
-from .registry import (ENGINES, PACKAGES, WORLDS, EngineError, check_engine, default_engine,  # noqa: F401
-                       installed, make_world, world_class)
+from .registry import (BATCH_ENGINES, ENGINES, PACKAGES, WORLDS, EngineError, batch_class,  # noqa: F401
+                       check_engine, default_engine, installed, make_world, world_class)

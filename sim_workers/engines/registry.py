@@ -7,12 +7,20 @@ import importlib
 import importlib.util
 
 ENGINES = ("pybullet", "mujoco")
-PACKAGES = {"pybullet": "pybullet", "mujoco": "mujoco"}
+# Engines that step a shard's particle worlds as one batch (issue 42): an optional extra.
+# Not in ENGINES, whose engines are bit-identical across shards and splits (and which every
+# per-engine check runs over); a batch engine is judged by the probe tables instead.
+BATCH_ENGINES = ("mujoco_warp",)
+PACKAGES = {"pybullet": "pybullet", "mujoco": "mujoco", "mujoco_warp": "mujoco_warp"}
 # Each engine's GroundedWorld subclass, by import path (as Gymnasium's entry points): the
 # base class resolves its engine's world here without importing every engine, and no
 # engine module imports the registry back.
 WORLDS = {"pybullet": "sim_workers.engines.pybullet_world:PybulletWorld",
-          "mujoco": "sim_workers.engines.mujoco_world:MujocoWorld"}
+          "mujoco": "sim_workers.engines.mujoco_world:MujocoWorld",
+          # a single world of the batch engine (a simulated reality, a probe) is its CPU twin
+          "mujoco_warp": "sim_workers.engines.mujoco_world:MujocoWorld"}
+# A batch engine's batch class, by import path.
+BATCHES = {"mujoco_warp": "sim_workers.engines.warp_batch:WarpBatch"}
 
 
 class EngineError(ValueError):
@@ -34,13 +42,25 @@ def check_engine(engine: str | None, field: str = "engine") -> str:
     `field` otherwise."""
     if engine is None or engine == "":
         return default_engine()
-    if engine not in ENGINES:
-        raise EngineError(f"{field}: unknown engine {engine!r} (known: {', '.join(ENGINES)})")
+    if engine not in ENGINES + BATCH_ENGINES:
+        raise EngineError(f"{field}: unknown engine {engine!r} (known: {', '.join(ENGINES + BATCH_ENGINES)})")
     if not installed(engine):
+        if engine in BATCH_ENGINES:
+            raise EngineError(f"{field}: the {engine} engine needs the Python package {PACKAGES[engine]!r}, "
+                              "which is not installed (pip install 'tmoc-service[warp]')")
         raise EngineError(f"{field}: the {engine} engine needs the Python package {PACKAGES[engine]!r}, "
                           f"which is not installed (pip install {PACKAGES[engine]}; its wheels exist only "
                           "for some CPython versions)")
     return engine
+
+
+def batch_class(engine: str | None):
+    """The batch class of a batch engine (``BATCHES``), or None for a per-world engine."""
+    engine = check_engine(engine)
+    if engine not in BATCHES:
+        return None
+    module, name = BATCHES[engine].split(":")
+    return getattr(importlib.import_module(module), name)
 
 
 def world_class(engine: str | None):

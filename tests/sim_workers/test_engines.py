@@ -23,7 +23,8 @@ ENGINES = list(engines.ENGINES)      # the registry's one list
 
 
 def test_unknown_engine_is_named_with_the_known_ones():
-    with pytest.raises(engines.EngineError, match=r"^engine: unknown engine 'bullet' \(known: pybullet, mujoco\)"):
+    with pytest.raises(engines.EngineError,
+                       match=r"^engine: unknown engine 'bullet' \(known: pybullet, mujoco, mujoco_warp\)"):
         engines.check_engine("bullet")
     with pytest.raises(engines.EngineError, match="engine: unknown"):
         load("container", engine="bullet")
@@ -43,10 +44,13 @@ def test_the_session_s_physics_half_learns_the_run_s_engine(engine):
 
 
 def test_a_missing_engine_names_its_package(monkeypatch):
-    monkeypatch.setattr(engines.registry, "installed", lambda e: e != "pybullet")
+    monkeypatch.setattr(engines.registry, "installed", lambda e: e not in ("pybullet", "mujoco_warp"))
     with pytest.raises(engines.EngineError, match="the pybullet engine needs the Python package 'pybullet'"):
         engines.check_engine("pybullet")
     assert engines.default_engine() == "mujoco"
+    # the batch engine names the extra that brings it
+    with pytest.raises(engines.EngineError, match=r"pip install 'tmoc-service\[warp\]'"):
+        engines.check_engine("mujoco_warp")
 
 
 @pytest.mark.parametrize("flag", ["--engine", "--reality-engine"])

@@ -1,0 +1,76 @@
+"""MuJoCo Warp's batch engine against CPU MuJoCo: particle-actions per second (issue 42).
+
+For the container's three actions (bench_worlds' workload: sizes from the prior, one
+trajectory from Y with the true size), one batch of K particles per action in a
+``Shard`` of each engine: CPU MuJoCo steps them one after another on one core; the
+``mujoco_warp`` engine steps all K at once on Warp's device (a GPU where Warp sees one,
+else the CPU). Wall-clock seconds after a warm-up batch (kernel compilation excluded,
+reported apart). Prints per K and action both throughputs and their ratio, the outcome
+agreement (share of particles with the same Y^-1), and last
+``ratio_warp_device_vs_cpu_core=<total particle-actions per second, warp over CPU>``.
+
+    python benchmarks/bench_warp.py                 # K = 16 and 64, about 2 minutes on a CPU
+    python benchmarks/bench_warp.py --batches 256,1024
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import time
+
+import numpy as np
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+sys.path.insert(0, os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+
+from bench_worlds import make_cases, particle_sizes  # noqa: E402
+
+from sim_workers.domains import load  # noqa: E402
+from sim_workers.shard import Shard  # noqa: E402
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--batches", default="16,64", help="batch sizes K")
+    ap.add_argument("--domain", default="container")
+    ap.add_argument("--seed", type=int, default=0)
+    args = ap.parse_args(argv)
+    from sim_workers.engines.warp_batch import device_name
+
+    device = device_name()
+    domain = load(args.domain, engine="mujoco")
+    cases = make_cases(domain, args.seed)
+    cpu = Shard(args.domain, {"engine": "mujoco"})
+    warp = Shard(args.domain, {"engine": "mujoco_warp"})
+    start, action, traj, t0 = next(iter(cases.values()))
+    t = time.perf_counter()
+    warp.simulate(start, particle_sizes(domain, 2, 0), action, traj, t0)
+    print(f"device={device} warm-up batch (kernel compilation or cache load) {time.perf_counter() - t:.1f} s", flush=True)
+    total = {"cpu": [0, 0.0], "warp": [0, 0.0]}
+    for k in [int(v) for v in args.batches.split(",")]:
+        sizes = particle_sizes(domain, k, args.seed + 1)
+        for kind, (start, action, traj, t0) in cases.items():
+            warp.simulate(start, sizes[:2], action, traj, t0)       # this action's kernels
+            runs = {}
+            for name, shard in (("cpu", cpu), ("warp", warp)):
+                t = time.perf_counter()
+                runs[name] = shard.simulate(start, sizes, action, traj, t0)
+                dt = time.perf_counter() - t
+                total[name][0] += k
+                total[name][1] += dt
+                runs[name + "_s"] = dt
+            same = np.mean([a == b for a, b in zip(runs["cpu"]["states"], runs["warp"]["states"])])
+            print(f"K={k:5d} {kind:7s} cpu core {k / runs['cpu_s']:8.1f}/s  warp ({device}) "
+                  f"{k / runs['warp_s']:8.1f}/s  ratio {runs['cpu_s'] / runs['warp_s']:.3f}  same Y^-1 {same:.0%}",
+                  flush=True)
+    cpu.close()
+    warp.close()
+    rate = {n: c / s for n, (c, s) in total.items()}
+    print(f"particle-actions per second: cpu core {rate['cpu']:.1f}, warp on {device} {rate['warp']:.1f}")
+    print(f"ratio_warp_device_vs_cpu_core={rate['warp'] / rate['cpu']:.3f}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
