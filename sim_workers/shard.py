@@ -159,7 +159,7 @@ class Shard:
             w.close()
 
 
-def remote_shard(num_cpus: float = 1.0):
+def remote_shard(num_cpus: float = 1.0, num_gpus: float = 0.0):
     """The Ray actor class: restarted by Ray when its process dies, its task retried.
 
     When a whole node is lost, a restart may find no room on the surviving nodes (they
@@ -167,4 +167,4 @@ def remote_shard(num_cpus: float = 1.0):
     shards and re-runs their batches on the survivors instead of waiting for a restart."""
     import ray
 
-    return ray.remote(num_cpus=num_cpus, max_restarts=-1, max_task_retries=-1)(Shard)
+    return ray.remote(num_cpus=num_cpus, num_gpus=num_gpus, max_restarts=-1, max_task_retries=-1)(Shard)

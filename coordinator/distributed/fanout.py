@@ -43,6 +43,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from sim_workers.engines.registry import BATCH_ENGINES
 from sim_workers.shard import Shard, decode_state, remote_shard
 
 from .node_dispatcher import NodeShardsLost, remote_dispatcher, slice_args
@@ -68,16 +69,32 @@ def init_ray(address: str | None = None, num_cpus: int = 2) -> dict:
 
 
 def cluster_nodes() -> list[dict]:
-    """The alive Ray nodes: node_id, hostname, address, cpus; the driver's node first."""
+    """The alive Ray nodes: node_id, hostname, address, cpus, gpus; the driver's node first."""
     import ray
 
     here = ray.get_runtime_context().get_node_id()
     nodes = [{"node_id": n["NodeID"], "hostname": n.get("NodeManagerHostname", ""),
               "address": n.get("NodeManagerAddress", ""),
-              "cpus": int(n.get("Resources", {}).get("CPU", 0))}
+              "cpus": int(n.get("Resources", {}).get("CPU", 0)),
+              "gpus": int(n.get("Resources", {}).get("GPU", 0))}
              for n in ray.nodes() if n.get("Alive")]
     nodes.sort(key=lambda n: (n["node_id"] != here, n["address"], n["node_id"]))
     return nodes
+
+
+def shard_slots(nodes: list[dict], threads: int = 1, gpus: bool = False) -> list[dict]:
+    """`nodes` with ``cpus`` as the shards each can hold: one per GPU (`gpus`: a batch
+    engine's shard steps all its particles on one), else one per `threads` CPUs.
+
+    >>> nodes = [{"node_id": "A", "cpus": 16, "gpus": 2}, {"node_id": "B", "cpus": 8, "gpus": 0}]
+    >>> [n["cpus"] for n in shard_slots(nodes)], [n["cpus"] for n in shard_slots(nodes, 4)]
+    ([16, 8], [4, 2])
+    >>> [n["cpus"] for n in shard_slots(nodes, gpus=True)]
+    [2, 0]
+    """
+    if gpus:
+        return [{**n, "cpus": int(n.get("gpus", 0))} for n in nodes]
+    return [{**n, "cpus": max(1, n["cpus"] // threads) if n["cpus"] else 0} for n in nodes]
 
 
 def plan_shards(nodes: list[dict], n_shards: int | None = None) -> list[str]:
@@ -198,7 +215,7 @@ class ShardPool:
 
         nodes = cluster_nodes()
         alive = {n["node_id"]: n for n in nodes}
-        slots = [{**n, "cpus": max(1, n["cpus"] // self.threads) if n["cpus"] else 0} for n in nodes]
+        slots = shard_slots(nodes, self.threads, self.on_gpus(nodes))
         self._drop([s for s in self._shards if s.node_id not in alive])
         with self._lock:
             have = Counter(s.node_id for s in self._shards)
@@ -211,7 +228,8 @@ class ShardPool:
             if self.requested is not None:
                 missing = missing[:max(0, self.requested - len(self._shards))]
             if missing and self._actor_cls is None:
-                self._actor_cls = remote_shard(self.num_cpus * self.threads)
+                gpus = self.num_cpus if self.on_gpus(nodes) else 0.0
+                self._actor_cls = remote_shard(self.num_cpus * self.threads, num_gpus=gpus)
             for node_id in missing:
                 actor = self._actor_cls.options(
                     scheduling_strategy=NodeAffinitySchedulingStrategy(node_id, soft=True),
@@ -219,6 +237,13 @@ class ShardPool:
                 self._shards.append(_ShardRef(actor, node_id, alive[node_id]["hostname"]))
         self._sync_dispatchers()
         return len(missing)
+
+    def on_gpus(self, nodes: list[dict]) -> bool:
+        """Whether this pool's shards go one per GPU: a batch engine (MuJoCo Warp) on a
+        cluster with GPUs. Each such shard reserves `num_cpus` of a GPU as well (a whole
+        one in a command, 1 / max_pools in the service), and its Warp sees that GPU."""
+        engine = self.options.get("engine")
+        return bool(engine in BATCH_ENGINES and any(n.get("gpus", 0) > 0 for n in nodes))
 
     def _sync_dispatchers(self) -> None:
         """One dispatcher per node that has shards, holding that node's shards: created

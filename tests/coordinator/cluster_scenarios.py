@@ -12,6 +12,8 @@ at most 4 actions, seed 7) and prints one JSON line (the last line of stdout):
   two      the task with the runner's own pool on both nodes
   failure  the same, the worker node removed while the second action's batches are in
            flight (its shard's slice must be re-run on the head)
+  gpu      a node with one logical GPU joins; a pool of the batch engine (mujoco_warp)
+           puts its one shard on it and its particles' outcomes are CPU MuJoCo's
 """
 from __future__ import annotations
 
@@ -87,6 +89,40 @@ def api_scenario(cluster, address: str, tmp: Path) -> dict:
     return out
 
 
+def gpu_scenario(cluster, ShardPool) -> dict:
+    """A node with one (logical) GPU joins: a batch-engine pool puts its one shard there,
+    reserving the GPU (on this machine without a CUDA driver Warp steps on the CPU)."""
+    import numpy as np
+    import ray
+
+    from sim_workers.domains import load
+    from sim_workers.shard import Shard, decode_state
+
+    node = cluster.add_node(num_cpus=1, num_gpus=1)
+    cluster.wait_for_nodes()
+    physics = load("container")
+    truth = physics.true_properties()
+    config = physics.initial_configuration(truth)
+    action = "pickup(r,b3,init)"
+    traj = physics.action_trajectory(config, action, physics.action_pose(truth, config, action))
+    sizes = np.repeat(np.array([[0.034], [0.045], [0.056]]), 8, axis=1)
+    options = {"n_blocks": 8, "engine": "mujoco_warp"}
+    pool = ShardPool("container", options)
+    try:
+        out = pool.simulate(config.to_array(), sizes, action, traj, start_time=float(traj[3, 0]))
+        gpus_left = ray.available_resources().get("GPU", 0.0)
+        shards = len(pool.actors)
+    finally:
+        pool.close()
+    cpu = Shard("container", {"n_blocks": 8, "engine": "mujoco"})
+    try:
+        want = cpu.simulate(config.to_array(), sizes, action, traj, start_time=float(traj[3, 0]))
+    finally:
+        cpu.close()
+    return {"node": node.node_id, "shards": shards, "nodes": out["nodes"], "gpus_free_while_running": gpus_left,
+            "same_states": [a == decode_state(b) for a, b in zip(out["states"], want["states"])]}
+
+
 def main() -> int:
     import tempfile
 
@@ -153,6 +189,10 @@ def main() -> int:
         timings["failure_s"] = time.perf_counter() - t
         timings["remove_s"] = removed.get("remove_s")
         alive = [n["NodeID"] for n in ray.nodes() if n["Alive"]]
+
+        t = time.perf_counter()
+        gpu = gpu_scenario(cluster, ShardPool)
+        timings["gpu_s"] = time.perf_counter() - t
     finally:
         ray.shutdown()
         cluster.shutdown()
@@ -162,7 +202,7 @@ def main() -> int:
         "two": {"result": strip(two), "runtime": two["runtime"]},
         "failure": {"result": strip(failure), "runtime": failure["runtime"],
                     "removed": "at" in removed},
-        "api": api,
+        "api": api, "gpu": gpu,
     }))
     return 0
 

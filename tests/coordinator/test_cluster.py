@@ -96,3 +96,14 @@ def test_service_pool_grows_onto_a_node_that_joined_between_tasks(scenarios):
             e.pop(k, None)
     assert api["episodes2"] == single["result"]["episodes"]
     assert t2["result"]["summary"] == single["result"]["summary"]
+
+
+def test_a_batch_engine_pool_puts_one_shard_per_gpu(scenarios):
+    """Issue 42: with the batch engine (MuJoCo Warp) a pool plans one shard per GPU of the
+    cluster, not per CPU: the node with the (logical) GPU holds it and runs the particles,
+    whose outcomes are CPU MuJoCo's."""
+    g = scenarios["gpu"]
+    assert g["shards"] == 1 and list(g["nodes"]) == [g["node"]]
+    assert g["nodes"][g["node"]]["particle_actions"] == 3
+    assert g["gpus_free_while_running"] == 0.0           # the shard holds the GPU
+    assert all(g["same_states"]), g["same_states"]
