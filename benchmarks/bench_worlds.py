@@ -10,7 +10,7 @@ Measured on this machine in one run:
   (a) in-process   one ``sim_workers.shard.Shard`` (one world), the whole batch in one call;
   (b) ray x2       two shard actors on local Ray (``ray.init(num_cpus=2)``), the batch split
                    in two, one remote call per actor per action;
-  (c) raw x2       two plain processes, each with the scene built once by ``domain.build``,
+  (c) raw x2       two plain processes, each with the scene built once from its declaration,
                    calling ``stepSimulation`` as many times as the shards reported in
                    ``steps`` for its half, the gripper held static (a resting scene);
   (d) replay x2    two plain processes redoing the very same physics with a bare pybullet
@@ -60,6 +60,7 @@ import pybullet as pb  # noqa: E402
 from sim_workers.domains import load  # noqa: E402
 from sim_workers.configuration import Configuration  # noqa: E402
 from sim_workers.engines import make_world  # noqa: E402
+from sim_workers.engines.pybullet_engine import build_scene  # noqa: E402
 from sim_workers.container.probes import loaded_configuration  # noqa: E402
 from sim_workers.shard import Shard, remote_shard  # noqa: E402
 
@@ -165,7 +166,7 @@ def _replay(job) -> float:
 def _raw_worker(conn, domain_name: str, n_blocks: int) -> None:
     """Steps one scene with bare ``stepSimulation`` calls; the gripper's target never changes.
 
-    Message ("built", None, n): the scene as the domain's ``build`` leaves it (blocks in
+    Message ("built", None, n): the scene as its declaration builds it (blocks in
     their row, the gripper up), built once. Message ("start", (start, action, traj, t0), n): the scene
     put once in the action's start configuration with the gripper at its pre-pose (same
     bodies in contact as the action starts with), then stepped n times. Replies the seconds
@@ -174,7 +175,9 @@ def _raw_worker(conn, domain_name: str, n_blocks: int) -> None:
     domain = load(domain_name, n_blocks=n_blocks)
     truth = domain.true_properties()
     client = pb.connect(pb.DIRECT)
-    domain.build(client, truth)
+    # The scene from the domain's declaration, as a pybullet world builds it (the domains'
+    # own ``build`` methods went in issue 39).
+    build_scene(client, domain.scene_description(domain.properties(truth)))
     step = pb.stepSimulation
     for _ in range(50):
         step(physicsClientId=client)
