@@ -6,7 +6,9 @@ trajectory from Y with the true size), one batch of K particles per action in a
 ``mujoco_warp`` engine steps all K at once on Warp's device (a GPU where Warp sees one,
 else the CPU). Wall-clock seconds after a warm-up batch (kernel compilation excluded,
 reported apart). Prints per K and action both throughputs and their ratio, the outcome
-agreement (share of particles with the same Y^-1), and last
+agreement (share of particles with the same Y^-1), the device's time for one batch step
+of all K worlds and the throughput it alone would allow (the engine's controller is the
+twins' Python, per world per step: the difference is its cost), and last
 ``ratio_warp_device_vs_cpu_core=<total particle-actions per second, warp over CPU>``.
 
     python benchmarks/bench_warp.py                 # K = 16 and 64, about 2 minutes on a CPU
@@ -28,6 +30,22 @@ from bench_worlds import make_cases, particle_sizes  # noqa: E402
 
 from sim_workers.domains import load  # noqa: E402
 from sim_workers.shard import Shard  # noqa: E402
+
+
+def device_step_ms(batch, steps: int = 30) -> float:
+    """Milliseconds of one ``mujoco_warp.step`` of the batch last loaded (all its worlds),
+    the device alone: what a controller vectorised over the worlds would approach."""
+    import mujoco_warp as mjw
+    import warp as wp
+
+    with wp.ScopedDevice(batch.device):
+        mjw.step(batch._model, batch._data)
+        wp.synchronize()
+        t = time.perf_counter()
+        for _ in range(steps):
+            mjw.step(batch._model, batch._data)
+        wp.synchronize()
+    return (time.perf_counter() - t) / steps * 1e3
 
 
 def main(argv=None) -> int:
@@ -61,9 +79,12 @@ def main(argv=None) -> int:
                 total[name][1] += dt
                 runs[name + "_s"] = dt
             same = np.mean([a == b for a, b in zip(runs["cpu"]["states"], runs["warp"]["states"])])
+            step_ms = device_step_ms(warp._batch)
+            steps = float(np.max(runs["warp"]["steps"]))
             print(f"K={k:5d} {kind:7s} cpu core {k / runs['cpu_s']:8.1f}/s  warp ({device}) "
-                  f"{k / runs['warp_s']:8.1f}/s  ratio {runs['cpu_s'] / runs['warp_s']:.3f}  same Y^-1 {same:.0%}",
-                  flush=True)
+                  f"{k / runs['warp_s']:8.1f}/s  ratio {runs['cpu_s'] / runs['warp_s']:.3f}  same Y^-1 {same:.0%}  "
+                  f"device step {step_ms:.2f} ms for {k} worlds (device alone: "
+                  f"{k / (steps * step_ms / 1e3):.0f} particle-actions/s)", flush=True)
     cpu.close()
     warp.close()
     rate = {n: c / s for n, (c, s) in total.items()}

@@ -55,12 +55,14 @@ import numpy as np
 os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")
 os.environ.setdefault("RAY_DEDUP_LOGS", "0")
 
-import pybullet as pb  # noqa: E402
+try:        # its workload (make_cases) serves MuJoCo-only machines too (bench_warp)
+    import pybullet as pb  # noqa: E402
+except ImportError:  # pragma: no cover - where pybullet has no wheel
+    pb = None
 
 from sim_workers.domains import load  # noqa: E402
 from sim_workers.configuration import Configuration  # noqa: E402
 from sim_workers.engines import make_world  # noqa: E402
-from sim_workers.engines.pybullet_engine import build_scene  # noqa: E402
 from sim_workers.container.probes import loaded_configuration  # noqa: E402
 from sim_workers.shard import Shard, remote_shard  # noqa: E402
 
@@ -177,6 +179,8 @@ def _raw_worker(conn, domain_name: str, n_blocks: int) -> None:
     client = pb.connect(pb.DIRECT)
     # The scene from the domain's declaration, as a pybullet world builds it (the domains'
     # own ``build`` methods went in issue 39).
+    from sim_workers.engines.pybullet_engine import build_scene
+
     build_scene(client, domain.scene_description(domain.properties(truth)))
     step = pb.stepSimulation
     for _ in range(50):
