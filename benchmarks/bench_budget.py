@@ -26,7 +26,7 @@ from coordinator.loop.runner import run  # noqa: E402
 def one(budget: str, args) -> tuple[list[dict], float]:
     cfg = RunConfig(domain=args.domain, particles=args.particles, episodes=args.episodes, seed=args.seed,
                     true_size=args.true_size, particle_budget=budget, min_particles=args.min_particles,
-                    truth=parse_truth([args.truth]) if args.truth else None,
+                    truth=parse_truth([args.truth]) if args.truth else {},
                     options=parse_options(args.option))
     t0 = time.perf_counter()
     res = run(cfg)

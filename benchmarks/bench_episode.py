@@ -27,11 +27,12 @@ def raw_steps_per_second(args: tuple[str, int]) -> float:
     import pybullet as pb
 
     from sim_workers.domains import load
+    from sim_workers.engines.pybullet_engine import build_scene
 
     domain, steps = args
     d = load(domain)
     c = pb.connect(pb.DIRECT)
-    d.build(c, d.true_properties())
+    build_scene(c, d.scene_description(d.properties(d.true_properties())))
     t0 = time.perf_counter()
     for _ in range(steps):
         pb.stepSimulation(physicsClientId=c)

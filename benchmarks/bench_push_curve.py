@@ -34,9 +34,9 @@ def main(argv=None) -> int:
     sizes = [float(s) for s in args.sizes.split(",")]
     heights = [int(h) for h in args.heights.split(",")]
     from sim_workers.domains import load
-    from sim_workers.reality_gap import push_time_jitter
+    from sim_workers.reality_gap import action_jitter
 
-    jitter = push_time_jitter(load("stack_and_push")) if args.jitter is None else args.jitter
+    jitter = action_jitter(load("stack_and_push"), "push") if args.jitter is None else args.jitter
     print(f"| jitter | size (mm) | {' | '.join(f'tower {h}' for h in heights)} | graded heights | s |")
     print("|---|---|" + "---|" * len(heights) + "---|---|")
     graded_sizes = {}

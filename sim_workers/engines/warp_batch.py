@@ -54,16 +54,17 @@ SHARED_OK = frozenset({"dof_length"})
 
 
 def device_name() -> str:
-    """"cuda" where Warp sees a GPU, else "cpu". On a GPU, atomics run in Warp's
-    run-to-run deterministic mode (a CPU device is deterministic as it is)."""
+    """"cuda" where Warp sees a GPU, else "cpu".
+
+    Warp's run-to-run deterministic mode for atomics is not set: it cannot compile MuJoCo
+    Warp's constraint kernel (``nefc_out`` is both read and atomically updated; measured on
+    an H200, WarpDeterminismError). On a GPU the order of atomic additions may then vary
+    from run to run (at float32 rounding); a CPU device is deterministic."""
     import warp as wp
 
     wp.config.log_level = max(int(wp.config.log_level), 30)     # no line per module load
     wp.init()
-    if wp.get_cuda_device_count() > 0:
-        wp.config.deterministic = wp.config.DeterministicMode.RUN_TO_RUN
-        return "cuda"
-    return "cpu"
+    return "cuda" if wp.get_cuda_device_count() > 0 else "cpu"
 
 
 class _Twin(MujocoWorld):
