@@ -96,12 +96,15 @@ def test_the_count_falls_as_the_belief_converges(runs):
 @pytest.mark.timeout(400)
 def test_an_adaptive_run_depends_on_its_seed_alone():
     # A three-episode run's first two episodes again, as a two-episode run: the result
-    # depends on the seed, not on how many episodes were asked for, including an episode
-    # whose count has adapted (the first runs at the maximum: comparing it alone, as this
-    # test did, checked no adaptation). Five blocks: 24 particles, then 6 (measured), in
-    # 17 + 14 s on 2 cores (the one-episode rerun of the eight-block run took 60 s).
+    # depends on the seed, not on how many episodes were asked for, including actions
+    # whose count has adapted (the first action runs at the maximum: comparing it alone,
+    # as this test once did, checked no adaptation). Five blocks, in 17 + 14 s on 2 cores.
+    # Where the count adapts is the physics' last bits, which differ between CPU models
+    # (an Intel Xeon: episode 2 at 6; an AMD EPYC: one action of episode 1 at 17, episode
+    # 2 at 24), so the check is that some compared action adapted, not which.
     three, two = _run("kld", episodes=3, n_blocks=5), _run("kld", episodes=2, n_blocks=5)
-    assert max(two["episodes"][1]["particles_per_action"]) < 24, two["episodes"][1]["particles_per_action"]
+    counts = [n for e in two["episodes"] for n in e["particles_per_action"]]
+    assert min(counts) < 24, counts
     strip = lambda eps: [{k: v for k, v in e.items() if not k.endswith("_s")} for e in eps]  # noqa: E731
     assert strip(two["episodes"]) == strip(three["episodes"][:2])
 
