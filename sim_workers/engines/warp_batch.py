@@ -214,9 +214,12 @@ class WarpBatch:
 
         k = len(twins)
         m0 = twins[0].model
-        fields = {f.name: getattr(f.type, "shape", ()) for f in dataclasses.fields(mjw.Model)}
-        differ = [name for name in _array_fields(m0) if name in fields
-                  and any(not np.array_equal(getattr(t.model, name), getattr(m0, name)) for t in twins[1:])]
+        # The device model's array fields that the host model has too: those a hypothesis
+        # can change for the device.
+        fields = {f.name: getattr(f.type, "shape", ()) for f in dataclasses.fields(mjw.Model)
+                  if isinstance(getattr(m0, f.name, None), np.ndarray)}
+        differ = [name for name in fields
+                  if any(not np.array_equal(getattr(t.model, name), getattr(m0, name)) for t in twins[1:])]
         unbatched = [name for name in differ if fields[name][:1] != ("*",) and name not in SHARED_OK]
         if unbatched:
             raise ValueError(f"engine mujoco_warp: this domain's hypotheses differ in model fields "
@@ -244,18 +247,3 @@ class WarpBatch:
         for t in self.twins:
             t.close()
         self.twins = []
-
-
-def _array_fields(m: mujoco.MjModel) -> list[str]:
-    """The model's array fields (those a hypothesis can change)."""
-    out = []
-    for name in dir(m):
-        if name.startswith("_"):
-            continue
-        try:
-            v = getattr(m, name)
-        except Exception:  # pragma: no cover - a property that needs arguments
-            continue
-        if isinstance(v, np.ndarray):
-            out.append(name)
-    return out

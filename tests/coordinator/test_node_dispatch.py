@@ -9,6 +9,8 @@ node's other shard).
 """
 from __future__ import annotations
 
+from contextlib import contextmanager
+
 import numpy as np
 import pytest
 
@@ -88,40 +90,43 @@ def test_one_call_per_node_gives_the_bits_of_every_other_split(ray_cluster, engi
     assert len({row.tobytes() for row in by_node["configurations"]}) > 3
 
 
-@pytest.mark.slow
-def test_a_restarted_dispatcher_is_sent_its_shards_again(ray_cluster):
-    ray = ray_cluster
+@contextmanager
+def _pushing_pool():
+    """A pybullet pool on the session's cluster and a call that pushes the SIZES batch."""
     start, traj, t0 = _push_case("pybullet")
     pool = _pool("pybullet")
     try:
-        first = pool.simulate(start, SIZES, PUSH, traj, t0)
+        yield pool, lambda: pool.simulate(start, SIZES, PUSH, traj, t0)
+    finally:
+        pool.close()
+
+
+@pytest.mark.slow
+def test_a_restarted_dispatcher_is_sent_its_shards_again(ray_cluster):
+    ray = ray_cluster
+    with _pushing_pool() as (pool, push):
+        first = push()
         (node,) = pool._nodes.values()
         before = ray.get(node.actor.ping.remote(), timeout=60)
         ray.kill(node.actor, no_restart=False)           # its process dies; Ray restarts it
-        again = pool.simulate(start, SIZES, PUSH, traj, t0)
+        again = push()
         after = ray.get(node.actor.ping.remote(), timeout=60)
         assert after["pid"] != before["pid"] and pool.timings["plans_resent"] == 1
         assert (after["epoch"], after["shards"]) == (node.epoch, 2)
         assert again["reruns"] == 0
-    finally:
-        pool.close()
     _same(first, again)
 
 
 @pytest.mark.slow
 def test_a_shard_lost_for_good_has_its_rows_rerun_on_the_node(ray_cluster):
     ray = ray_cluster
-    start, traj, t0 = _push_case("pybullet")
-    pool = _pool("pybullet")
-    try:
-        first = pool.simulate(start, SIZES, PUSH, traj, t0)
+    with _pushing_pool() as (pool, push):
+        first = push()
         ray.kill(pool.actors[0], no_restart=True)
-        again = pool.simulate(start, SIZES, PUSH, traj, t0)
+        again = push()
         assert again["reruns"] == 1
         (node,) = pool._nodes.values()
         assert ray.get(node.actor.ping.remote(), timeout=60)["shards"] == 1
-    finally:
-        pool.close()
     _same(first, again)
 
 
