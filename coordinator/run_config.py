@@ -227,6 +227,9 @@ class RunConfig(BaseModel):
     # MuJoCo); the two differ for a run whose simulator is not its reality.
     engine: EngineName | None = None
     reality_engine: EngineName | None = None
+    # The robot that moves the tool (issue 41; `tmoc robots`): "gripper", the floating
+    # two-finger gripper, or an arm ("ur5e"), which gets a joint trajectory per step.
+    robot: str = Field("gripper", min_length=1, max_length=64)
     # The simulated reality's sensors (issue 37; sim_workers.reality_gap.SensorNoise): what
     # it reports is noisy, the world goes on from the truth. Simulated realities only (a
     # robot session has no such fields). Stored settings from before them keep the exact
@@ -333,6 +336,20 @@ class RunConfig(BaseModel):
                     check_engine(value, field)
                 except EngineError as exc:
                     raise ValueError(str(exc)) from None
+        return self
+
+    @model_validator(mode="after")
+    def _robot_is_registered(self) -> "RunConfig":
+        from sim_workers.robots import names, robot
+
+        if self.robot not in names():
+            raise ValueError(f"robot: no robot {self.robot!r} (known: {', '.join(names())}; tmoc robots)")
+        if robot(self.robot).kind == "arm":
+            from coordinator.domains import load
+
+            if getattr(load(self.domain, n_blocks=self.n_blocks).physics, "robot_base", None) is None:
+                raise ValueError(f"robot: domain {self.domain!r} declares no robot_base, so the arm "
+                                 f"{self.robot!r} has nowhere to stand")
         return self
 
     @model_validator(mode="after")

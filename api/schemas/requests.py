@@ -87,6 +87,13 @@ def _spec_fields(exclude: set[str], max_particles: int, max_episodes: int, max_s
         fields["domain"] = (Literal[known], Field(  # type: ignore[valid-type]
             DEFAULT_DOMAIN, description=f"the task's domain, one of: {', '.join(known)} "
                                      "(GET /v1/domains)"))
+    if "robot" not in exclude:
+        # the robots registered when the app is built (GET /v1/robots)
+        from coordinator.robots import names as robot_names
+        bots = tuple(robot_names())
+        fields["robot"] = (Literal[bots], Field(  # type: ignore[valid-type]
+            "gripper", description=f"the robot that moves the tool, one of: {', '.join(bots)}; an arm's "
+                                   "steps carry a joint trajectory (GET /v1/robots)"))
     fields["particles"] = (int, Field(
         min(RunConfig.model_fields["particles"].default, max_particles), ge=1, le=max_particles,
         description=f"particles (grounded worlds) of the belief over L; this server's limit is "

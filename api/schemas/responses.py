@@ -130,6 +130,18 @@ class CurveView(BaseModel):
     points: list[CurvePoint]
 
 
+class JointPoint(BaseModel):
+    positions: list[float] = Field(description="rad, one per joint in joint_names' order")
+    velocities: list[float] = Field(description="rad/s")
+    accelerations: list[float] = Field(description="rad/s^2")
+    time_from_start: float = Field(description="s from the step's start")
+
+
+class JointTrajectory(BaseModel):
+    joint_names: list[str]
+    points: list[JointPoint]
+
+
 class StepView(BaseModel):
     episode: int
     step: int
@@ -143,6 +155,10 @@ class StepView(BaseModel):
         "may exert beyond carrying the gripper; below the scene's default, a guarded move: the "
         "rest of the trajectory continues from where the gripper got to)")
     expected: list[str] = Field(description="the planned symbolic state after the action")
+    joint_trajectory: JointTrajectory | None = Field(None, description=(
+        "an arm's joint trajectory for this step, in the shape of a control_msgs/FollowJointTrajectory "
+        "goal's trajectory (null for the floating gripper); the trajectory rows above are its tool path "
+        "at its times (GET /v1/robots/{name} has the kinematics to check it)"))
 
 
 class SessionView(BaseModel):
@@ -262,6 +278,14 @@ class RobotJoint(BaseModel):
     max_acceleration: float | None = Field(description="per second squared; null: the maker publishes none")
 
 
+class RobotLink(BaseModel):
+    name: str
+    frame: int = Field(description="0: the base frame; 1-6: the Denavit-Hartenberg link frames (6: the flange)")
+    a: list[float] = Field(description="one end of the capsule's axis in that frame (m)")
+    b: list[float] = Field(description="the other end (m)")
+    radius: float = Field(description="m")
+
+
 class RobotView(BaseModel):
     name: str
     kind: str = Field(description="floating (the tool point is commanded directly) or arm")
@@ -276,6 +300,10 @@ class RobotView(BaseModel):
         "4 x 4 pose of the tool point (the fingertip centre) in the flange's frame: the tool's world pose is "
         "base @ forward(q) @ flange_to_tool"))
     home: list[float] | None = Field(None, description="the arm's home joint positions (rad)")
+    links: list[RobotLink] | None = Field(None, description=(
+        "an arm's collision shapes: capsules in its link frames, checked against the believed scene"))
+    trajectory_acceleration: float | None = Field(None, description=(
+        "the joint acceleration (rad/s^2) the service times an arm's trajectories with"))
 
 
 class RobotList(BaseModel):

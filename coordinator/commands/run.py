@@ -24,7 +24,7 @@ _FLAG_FIELDS = {"domain": "--domain", "agent": "--agent", "particles": "--partic
                 "engine": "--engine", "reality_engine": "--reality-engine",
                 "sensor_noise": "--sensor-noise", "sensor_bias": "--sensor-bias",
                 "sensor_tails": "--sensor-tails", "perception_sigma": "--perception-sigma",
-                "n_blocks": "--objects", "counterfactual_rows": "--counterfactual"}
+                "n_blocks": "--objects", "counterfactual_rows": "--counterfactual", "robot": "--robot"}
 
 
 def register(sub) -> None:
@@ -87,6 +87,9 @@ def register(sub) -> None:
                         f"the belief each simulate every context the domain declares, and T learns from "
                         f"them (a power prior per action family); 0: off, the paper's loop "
                         f"(default {d.counterfactual_rows})")
+    p.add_argument("--robot", default=None, metavar="NAME",
+                   help=f"the robot that moves the tool (`tmoc robots`): gripper, the floating gripper, or an "
+                        f"arm such as ur5e, which gets a joint trajectory per step (default {d.robot})")
     p.add_argument("--shards", type=int, default=None, help="shard actors (default: one per CPU)")
     p.add_argument("--ray-address", default=None, help="join a running Ray cluster")
     p.add_argument("--out", default="runs/latest", help="output directory")

@@ -40,7 +40,10 @@ from .reality import Observation
 from .real_pose import real_pose
 from ..run_config import AGENT_STREAM, COUNTERFACTUAL_STREAM, RunConfig, seed_stream
 from .step_record import step_record
-from .transit import plan_pre_pose_transit
+from .transit import plan_pre_pose_transit, transit_checker
+from planner.motion import MotionPlanningError
+from .arm_motion import belief_scene_size, plan_arm_step, robot_of, start_joints
+from sim_workers.robots import Unreachable
 from ..transition.transition_model import TransitionModel, transition_table
 
 # A property whose posterior std is still over this share of its prior's (a uniform prior:
@@ -62,11 +65,18 @@ class PendingStep:
     transit_end: float            # where particle worlds start: the checked transit's end, or 0
     particle_poses: np.ndarray | None = None
     unchecked_transit: bool = False   # a transit fallback: particle worlds replay it too
+    # An arm's joint trajectory (a FollowJointTrajectory goal's, coordinator.loop.arm_motion)
+    # and the joints it ends at; None for the floating gripper.
+    joint_trajectory: dict | None = None
+    end_joints: np.ndarray | None = None
 
     def to_dict(self) -> dict:
-        return {"action": self.action, "pose": self.pose.tolist(),
-                "trajectory": self.trajectory.tolist(),
-                "trajectory_columns": list(columns_of(self.trajectory)), "expected": sorted(self.expected)}
+        out = {"action": self.action, "pose": self.pose.tolist(),
+               "trajectory": self.trajectory.tolist(),
+               "trajectory_columns": list(columns_of(self.trajectory)), "expected": sorted(self.expected)}
+        if self.joint_trajectory is not None:
+            out["joint_trajectory"] = self.joint_trajectory
+        return out
 
 
 class Session:
@@ -121,6 +131,11 @@ class Session:
         # TMP-RL's grounding by trial and error (its arm for the pending action, if any).
         self.bandit = GroundingBandit(self.low, self.high) if self.agent.grasp == "bandit" else None
         self._arm: tuple[str, int] | None = None
+        # The robot that moves the tool (issue 41): an arm, placed where the domain stands
+        # it, gets a joint trajectory per step (coordinator.loop.arm_motion); its joints
+        # are the last step's end within an episode, the home branch at an episode's start.
+        self.robot = robot_of(config.robot, self.domain)
+        self.joints: np.ndarray | None = None
 
     @property
     def belief(self) -> Belief | None:
@@ -228,6 +243,7 @@ class Session:
         self.stats = EpisodeStats()
         self.step_records = []
         self.filter.start_episode()
+        self.joints = None
         self._t0 = time.perf_counter()
 
     @property
@@ -317,8 +333,48 @@ class Session:
         # something, so they replay the whole trajectory from its start, as the robot moved.
         t_pre = 0.0 if transit is None else self.domain.transit_end_time(config, action, x, transit)
         expected = self.task.apply(self.state, action)
-        self.pending = PendingStep(action, x, traj, expected, t_pre, xs, unchecked_transit=transit is None)
+        step = PendingStep(action, x, traj, expected, t_pre, xs, unchecked_transit=transit is None)
+        if self.robot is not None and not self._arm_step(config, step):
+            return None
+        self.pending = step
         return self.pending
+
+    def _arm_step(self, config: Configuration, step: PendingStep) -> bool:
+        """Give `step` the arm's joint trajectory and its tool rows (``plan_arm_step``);
+        False, with the episode ended as a dead end naming why, when the arm cannot."""
+        t0 = time.perf_counter()
+        try:
+            sizes = self.clearance_sizes()
+            obstacles = self.domain.obstacles(config, sizes)
+            start = self.joints
+            if start is None:
+                start = start_joints(self.robot, config.robot, obstacles)
+            elif np.abs(self.robot.tool(start)[:3, 3] - config.robot[:3]).max() > 1e-3:
+                start = self.robot.joints_for(*config.robot[:4], start)     # where the tool got to
+            opening = float(np.max(step.trajectory[:, 5]))
+            plan = plan_arm_step(self.robot, step.trajectory, obstacles, start=start,
+                                 seed=int(self.rng.integers(2**31)), transit_end=step.transit_end,
+                                 tool_valid=transit_checker(self.domain, config, sizes, self._held_size(sizes),
+                                                            opening))
+        except (MotionPlanningError, Unreachable) as exc:      # ArmPlanningError included
+            self.plan = []
+            self.stats.dead_end = f"the arm cannot {step.action}: {exc}"[:200]
+            return False
+        finally:
+            self.stats.planning_s += time.perf_counter() - t0
+        step.transit_end = plan.time_of(step.transit_end) if step.transit_end else 0.0
+        step.trajectory = plan.rows
+        step.joint_trajectory = plan.path.goal(self.robot.joint_names)
+        step.end_joints = plan.end
+        return True
+
+    def clearance_sizes(self) -> np.ndarray:
+        """Per object, the size an arm's links clear: the belief's QUANTILE (so a tower wider
+        than believed is cleared too); the believed sizes without a belief."""
+        if self.belief is None:
+            return self.believed_sizes()
+        sizes, w = self.particle_sizes(), self.belief.weights
+        return np.array([belief_scene_size(sizes[:, k], w) for k in range(sizes.shape[1])])
 
     def observe(self, observation: Observation) -> dict:
         """Steps 3-6 of the loop for the pending action, given the real outcome."""
@@ -333,6 +389,8 @@ class Session:
         if self._arm is not None:
             self.bandit.observe(*self._arm, success)
             self._arm = None
+        if step.end_joints is not None:
+            self.joints = step.end_joints
         self.experience.add_real(before.state, step.action, observation.state, step.expected)
         self.transition = self._transition_model()
         self._account(before.state, step, observation.state, success)

@@ -115,6 +115,10 @@ class Arm(Robot):
     dh: DH
     flange_to_tool: np.ndarray = np.eye(4)
     base: np.ndarray = np.eye(4)
+    # Collision shapes of the links (``sim_workers.robots.collision.Capsule``), and the
+    # joint acceleration a time parameterisation uses where the maker publishes none.
+    links: tuple = ()
+    acceleration: float = 1.4
 
     def placed(self, base: tuple[float, float, float, float] | None) -> "Arm":
         """This arm with its base at (x, y, z, yaw) in the world (a domain's ``robot_base``);
@@ -151,7 +155,10 @@ class Arm(Robot):
         d = super().describe()
         d.update(dh={k: getattr(self.dh, k) for k in ("d1", "a2", "a3", "d4", "d5", "d6")},
                  dh_alpha=self.dh.alpha.tolist(), base=np.asarray(self.base).tolist(),
-                 flange_to_tool=np.asarray(self.flange_to_tool).tolist(), home=self.home.tolist())
+                 flange_to_tool=np.asarray(self.flange_to_tool).tolist(), home=self.home.tolist(),
+                 links=[{"name": c.name, "frame": c.frame, "a": list(c.a), "b": list(c.b), "radius": c.radius}
+                        for c in self.links],
+                 trajectory_acceleration=self.acceleration)
         return d
 
 

@@ -14,6 +14,7 @@ import math
 import numpy as np
 
 from .base import Arm, Joint
+from .collision import Capsule
 from .kinematics import DH
 
 TURN = 2.0 * math.pi
@@ -23,6 +24,24 @@ SPEED = math.pi                 # 180 degrees/s
 # (60 mm) and palm (20 mm), and 70 mm of coupling and actuator. A user with another gripper
 # declares their own (a subclass with its own flange_to_tool).
 TOOL_LENGTH = 0.15
+
+# The links as capsules in the Denavit-Hartenberg frames (metres), sized from the UR5e's
+# published drawings: the upper arm runs 138 mm out along the shoulder axis from the DH
+# line, the forearm comes back 131 mm and the first wrist goes out 127 mm (so d4 = 133.3 mm
+# net, rounded); housings 150 mm across at the base, 120 mm at the shoulder and the upper
+# arm, 100 mm on the forearm, 90 mm at the wrists. The links end at the flange: below it the
+# gripper is the domain's own gripper model (its palm and finger boxes), which every tool
+# path is already checked with.
+LINKS = (
+    Capsule("base", 0, (0.0, 0.0, 0.0), (0.0, 0.0, 0.1625), 0.075, floor=False),
+    Capsule("shoulder", 1, (0.0, 0.0, -0.065), (0.0, 0.0, 0.138), 0.06),
+    Capsule("upper_arm", 2, (0.425, 0.0, 0.138), (0.0, 0.0, 0.138), 0.06),
+    Capsule("elbow", 2, (0.0, 0.0, 0.138), (0.0, 0.0, 0.007), 0.05),
+    Capsule("forearm", 3, (0.3922, 0.0, 0.007), (0.0, 0.0, 0.007), 0.05),
+    Capsule("wrist_1", 3, (0.0, 0.0, 0.007), (0.0, 0.0, 0.1333), 0.045),
+    Capsule("wrist_2", 4, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0997), 0.045),
+    Capsule("wrist_3", 5, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0996), 0.045),
+)
 
 
 class UR5e(Arm):
@@ -37,6 +56,10 @@ class UR5e(Arm):
               Joint("wrist_3_joint", -TURN, TURN, SPEED))
     flange_to_tool = np.array([[1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, TOOL_LENGTH],
                                [0.0, 0.0, 0.0, 1.0]])
+    links = LINKS
+    # Universal Robots publishes no joint acceleration limit; its controller's own default
+    # for a joint move (URScript movej, a = 1.4 rad/s^2) is the one the service times with.
+    acceleration = 1.4
 
     @property
     def home(self) -> np.ndarray:

@@ -229,3 +229,41 @@ def test_a_robot_session_asks_its_worlds_before_its_first_plan(client):
         assert body["episode"]["counterfactual_s"] > 0
     finally:
         world.close()
+
+
+def test_an_arm_s_session_steps_carry_a_joint_trajectory_a_client_can_check(client, robot):
+    """Issue 41: with robot ur5e each step carries a FollowJointTrajectory-shaped goal whose
+    positions put the tool (by GET /v1/robots' kinematics) on the step's rows."""
+    from sim_workers.robots.kinematics import DH, forward
+
+    start = robot.start_episode(np.random.default_rng(0))
+    r = client.post("/v1/sessions", json={"agent": "tmoc", "particles": 4, "episodes": 1, "max_steps": 2,
+                                          "seed": 1, "robot": "ur5e", "observation": _observation(start)})
+    assert r.status_code == 201, r.text
+    sid, step = r.json()["id"], r.json()["next"]
+    ur5e = client.get("/v1/robots/ur5e").json()
+    assert ur5e["links"] and ur5e["trajectory_acceleration"] == 1.4
+    dh = DH(**ur5e["dh"])
+    # the arm stands where the domain declares (GET /v1/domains: robot_base x, y, z, yaw)
+    domains = client.get("/v1/domains").json()
+    domains = domains.get("items", domains) if isinstance(domains, dict) else domains
+    x, y, z, yaw = next(d for d in domains if d["name"] == "container")["robot_base"]
+    base = np.array([[np.cos(yaw), -np.sin(yaw), 0, x], [np.sin(yaw), np.cos(yaw), 0, y], [0, 0, 1, z], [0, 0, 0, 1]])
+    tool = np.array(ur5e["flange_to_tool"])
+    n = 0
+    while step is not None:
+        goal = step["joint_trajectory"]
+        assert goal["joint_names"] == [j["name"] for j in ur5e["joints"]]
+        assert len(goal["points"]) == len(step["trajectory"])
+        for point, row in zip(goal["points"], step["trajectory"]):
+            pose = base @ forward(dh, np.array(point["positions"])) @ tool
+            assert np.abs(pose[:3, 3] - row[1:4]).max() < 1e-6
+            assert abs(point["time_from_start"] - (row[0] - step["trajectory"][0][0])) < 1e-9
+            assert max(abs(v) for v in point["velocities"]) <= 1.02 * ur5e["joints"][0]["max_velocity"]
+        outcome = robot.execute(np.array(step["trajectory"]), step["action"])
+        r = client.post(f"/v1/sessions/{sid}/observations", json=_observation(outcome, step))
+        assert r.status_code == 200, r.text
+        step, n = r.json()["next"], n + 1
+    assert n == 2
+    bad = client.post("/v1/sessions", json={"robot": "ur6", "observation": _observation(start)})
+    assert bad.status_code == 422 and "robot" in bad.text

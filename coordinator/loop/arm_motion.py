@@ -1,0 +1,250 @@
+"""An arm's joint trajectory for a step's tool path (issue 41): follow the tool rows by
+inverse kinematics to a tolerance, every link checked against the believed scene; where
+following fails in the transit (a link in the way, a pose out of reach, a branch flip), plan
+that span in joint space by RRT*; time the whole path within the joint limits (toppra),
+never faster than the domain timed the tool. The step's rows are then the arm's tool path,
+at the arm's times, so the particle worlds simulate what the arm will do.
+
+This module is where the robot declarations (``sim_workers.robots``) meet the planners
+(``planner.motion``), which never import each other.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from planner.motion import MotionPlanningError
+from planner.motion.joint_space import JointPath, densify_joints, plan_joint_rrtstar, time_joint_path
+from sim_workers.robots import Unreachable, robot
+from sim_workers.robots.base import Arm, tool_pose
+from sim_workers.robots.collision import links_checker
+from sim_workers.robots.kinematics import frames, nearest
+
+__all__ = ["ArmPlan", "ArmPlanningError", "belief_scene_size", "plan_arm_step", "robot_of",
+           "start_joints"]
+
+TOLERANCE = 1e-3        # m: the arm's tool stays this near the step's tool path (issue 41's aim)
+YAW_TOLERANCE = 1e-2    # rad: the fingers' turn (1 mm at a finger 0.1 m from the axis)
+MAX_DEPTH = 10          # bisections of one row gap (1024 pieces: a gap of 0.5 m down to 0.5 mm)
+JUMP = 0.5              # rad a joint may move in one piece below DEPTH_JUMP bisections: more is a branch flip
+CHECK_STEP = 0.01       # rad between link checks along a joint segment (~8 mm of tool at full reach)
+QUANTILE = 0.975        # the believed size the links clear: a tower wider than believed is cleared too
+RRT_ITERATIONS = 300
+TILT = 0.05             # rad the tool may tilt from pointing down in a joint-space move (~3 degrees)
+
+
+class ArmPlanningError(MotionPlanningError):
+    """No joint trajectory for the step's tool path; the message names the row and why."""
+
+
+@dataclass
+class ArmPlan:
+    """The arm's answer for one step: its timed joint path, the tool rows it draws (t, x, y,
+    z, yaw, opening, ...) and the joints it ends at; `replanned`: points of the transit
+    planned in joint space (the move to the step's first pose, where the robot stood a
+    little off it, is not counted), `tilt`: the tool's largest tilt from pointing down there (rad)."""
+
+    path: JointPath
+    rows: np.ndarray
+    end: np.ndarray
+    source_t: np.ndarray          # per point: the time on the step's own rows it stands for
+    replanned: int = 0
+    tilt: float = 0.0
+
+    def time_of(self, t_rows: float) -> float:
+        """The arm's time at the last point that stands for a time <= `t_rows` of the step's rows."""
+        k = np.flatnonzero(self.source_t <= t_rows + 1e-9)
+        return float(self.rows[k[-1], 0]) if k.size else float(self.rows[0, 0])
+
+
+def robot_of(name: str, physics) -> Arm | None:
+    """The run's robot as the session drives it: an arm placed at the domain's
+    ``robot_base``, or None for the floating gripper (the tool rows are its commands)."""
+    bot = robot(name)
+    if not isinstance(bot, Arm):
+        return None
+    base = getattr(physics, "robot_base", None)
+    if base is None:
+        raise ArmPlanningError(f"robot {name!r}: the domain declares no robot_base, so the arm has "
+                               "nowhere to stand (docs/DOMAINS.md)")
+    return bot.placed(base)
+
+
+def start_joints(arm: Arm, pose: np.ndarray, obstacles: list) -> np.ndarray:
+    """The joints an episode starts from for the tool at `pose` (x, y, z, yaw): of the
+    inverse's branches within the limits and clear of the scene, the one with the elbow
+    highest (the elbow-up posture of pick and place: the upper arm and forearm stay above
+    what the hand works on), each angle on the turn nearest the arm's home."""
+    clear = links_checker(arm, obstacles)
+    best, best_z = None, -math.inf
+    for branch in arm.branches(tool_pose(*pose[:4]), float(arm.home[5])):
+        try:
+            q = nearest(branch[None, :], arm.home, arm.low, arm.high)
+        except Unreachable:
+            continue
+        z = float((arm.base @ frames(arm.dh, q)[1])[2, 3])        # the elbow: link frame 2's origin
+        if clear(q) and z > best_z:
+            best, best_z = q, z
+    if best is None:
+        raise ArmPlanningError(f"no branch of the arm reaches {np.round(pose[:4], 4).tolist()} clear of the scene")
+    return best
+
+
+def belief_scene_size(particles: np.ndarray, weights: np.ndarray, q: float = QUANTILE) -> float:
+    """The weighted `q`-quantile of the believed sizes (one column): what the links clear."""
+    x = np.asarray(particles, dtype=np.float64).reshape(-1)
+    w = np.asarray(weights, dtype=np.float64).reshape(-1)
+    order = np.argsort(x)
+    c = np.cumsum(w[order]) / w.sum()
+    return float(x[order][min(int(np.searchsorted(c, q)), len(x) - 1)])
+
+
+def _pose_error(arm: Arm, q: np.ndarray, target: np.ndarray) -> tuple[float, float]:
+    t = arm.tool(q)
+    want = tool_pose(*target)
+    pos = float(np.linalg.norm(t[:3, 3] - want[:3, 3]))
+    yaw = math.atan2(t[1, 0], t[0, 0]) - math.atan2(want[1, 0], want[0, 0])
+    return pos, abs((yaw + math.pi) % (2 * math.pi) - math.pi)
+
+
+def _mid(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """The tool pose halfway (x, y, z linear; yaw the short way; the rest linear)."""
+    m = 0.5 * (a + b)
+    m[3] = a[3] + 0.5 * ((b[3] - a[3] + math.pi) % (2 * math.pi) - math.pi)
+    return m
+
+
+def _follow(arm: Arm, qa: np.ndarray, qb: np.ndarray, ra: np.ndarray, rb: np.ndarray, depth: int = 0) -> list:
+    """Joint waypoints after `qa` up to `qb` whose joint-linear pieces keep the tool within
+    TOLERANCE of the straight tool segment `ra`-`rb` (rows x, y, z, yaw, ...); [(q, row)]."""
+    rm = _mid(ra, rb)
+    qm_lin = 0.5 * (qa + qb)
+    pos, yaw = _pose_error(arm, qm_lin, rm[:4])
+    if pos <= TOLERANCE and yaw <= YAW_TOLERANCE:
+        return [(qb, rb)]
+    if depth >= MAX_DEPTH:
+        raise ArmPlanningError(f"the arm cannot follow the tool path near {np.round(rm[:4], 4).tolist()} "
+                               f"to {TOLERANCE * 1000:g} mm")
+    qm = arm.joints_for(*rm[:4], qa)
+    if depth >= 3 and max(np.abs(qm - qa).max(), np.abs(qb - qm).max()) > JUMP:
+        raise ArmPlanningError(f"the arm flips branch near {np.round(rm[:4], 4).tolist()}")
+    return _follow(arm, qa, qm, ra, rm, depth + 1) + _follow(arm, qm, qb, rm, rb, depth + 1)
+
+
+def _segments_clear(qs: np.ndarray, is_valid) -> int | None:
+    """The first piece index whose densified joint segment meets a link collision, else None."""
+    for i in range(len(qs) - 1):
+        if not all(is_valid(q) for q in densify_joints(qs[i:i + 2], CHECK_STEP)[1:]):
+            return i
+    return None
+
+
+def _tool_rows(arm: Arm, qs: np.ndarray, extra: np.ndarray) -> tuple[np.ndarray, float]:
+    """Rows (x, y, z, yaw, extra...) of the tool at joints `qs`, and the largest tilt."""
+    out, tilt = [], 0.0
+    for q, e in zip(qs, extra):
+        t = arm.tool(q)
+        tilt = max(tilt, math.acos(max(-1.0, min(1.0, -float(t[2, 2])))))
+        out.append([*t[:3, 3], math.atan2(t[1, 0], t[0, 0]), *e])
+    return np.array(out), tilt
+
+
+def plan_arm_step(arm: Arm, rows: np.ndarray, obstacles: list, *, start: np.ndarray, seed: int,
+                  transit_end: float | None = None, tool_valid=None) -> ArmPlan:
+    """The arm's plan for a step's tool `rows` (T, 6+): t, x, y, z, yaw, opening (and the
+    efforts), from joints `start`, every link clear of `obstacles` (boxes as a domain's
+    ``obstacles`` at the believed sizes). Rows up to `transit_end` (s) are the transit: a
+    span there that cannot be followed is planned in joint space, the gripper (and what it
+    holds) checked at the tool's pose by `tool_valid(q4)` (the domain's transit check).
+    Raises ArmPlanningError when no plan exists."""
+    rows = np.asarray(rows, dtype=np.float64)
+    links = links_checker(arm, obstacles)
+    hand = _hand_checker(arm, links, tool_valid)
+    start = np.asarray(start, dtype=np.float64)
+    try:
+        q0 = arm.joints_for(*rows[0, 1:5], start)
+    except Unreachable as exc:
+        raise ArmPlanningError(f"row 0 ({np.round(rows[0, 1:5], 4).tolist()}): {exc}") from None
+    qs, rs, dts, src = [start], [rows[0, 1:]], [], [rows[0, 0]]
+    replanned = 0
+    if np.abs(q0 - start).max() > 1e-6:        # to the step's first pose: a joint move
+        bridge = _bridge(arm, hand, start, q0, seed)
+        qs += list(bridge[1:])
+        rs += [rows[0, 1:]] * (len(bridge) - 1)
+        dts += [0.0] * (len(bridge) - 1)
+        src += [rows[0, 0]] * (len(bridge) - 1)
+    i = 0
+    while i < len(rows) - 1:
+        qa = qs[-1]
+        try:
+            qb = arm.joints_for(*rows[i + 1, 1:5], qa)
+            piece = _follow(arm, qa, qb, rows[i, 1:], rows[i + 1, 1:])
+            blocked = _segments_clear(np.array([qa] + [p[0] for p in piece]), links)
+        except (Unreachable, ArmPlanningError) as exc:
+            piece, blocked, why = None, 0, str(exc)
+        else:
+            hit = None if blocked is None else next((links.contact(q) for q in densify_joints(
+                np.array([qa] + [p[0] for p in piece])[blocked:blocked + 2], CHECK_STEP) if not links(q)), None)
+            why = ("a link meets the believed scene" if hit is None else
+                   f"the {hit[0]} meets " + ("the table" if hit[1] < 0 else f"obstacle {hit[1]}"))
+        if blocked is None:
+            dt = (rows[i + 1, 0] - rows[i, 0]) / len(piece)
+            qs += [p[0] for p in piece]
+            rs += [p[1] for p in piece]
+            dts += [dt] * len(piece)
+            src += list(rows[i, 0] + dt * np.arange(1, len(piece) + 1))
+            i += 1
+            continue
+        if transit_end is None or rows[i + 1, 0] > transit_end + 1e-9:
+            raise ArmPlanningError(f"rows {i}-{i + 1} ({np.round(rows[i + 1, 1:5], 4).tolist()}): {why}")
+        # the rest of the transit in joint space: from here to the transit's last row
+        j = int(np.flatnonzero(rows[:, 0] <= transit_end + 1e-9)[-1])
+        try:
+            qj = arm.joints_for(*rows[j, 1:5], qa)
+        except Unreachable as exc:
+            raise ArmPlanningError(f"row {j}: {exc}") from None
+        hit = links.contact(qj)
+        if hit is not None:
+            raise ArmPlanningError(f"row {j} ({np.round(rows[j, 1:5], 4).tolist()}), where the transit ends: "
+                                   f"the {hit[0]} meets " + ("the table" if hit[1] < 0 else f"obstacle {hit[1]}")
+                                   + " (the tool path there leaves the arm no room)")
+        bridge = _bridge(arm, hand, qa, qj, seed + i)
+        qs += list(bridge[1:])
+        rs += [rows[j, 1:]] * (len(bridge) - 1)
+        dts += [0.0] * (len(bridge) - 1)
+        src += [rows[i, 0]] * (len(bridge) - 2) + [rows[j, 0]]
+        replanned += len(bridge) - 1
+        i = j
+    qs_arr = np.array(qs)
+    path = time_joint_path(qs_arr, np.array([j.max_velocity for j in arm.joints]),
+                           np.full(len(arm.joints), arm.acceleration), nominal_dt=np.array(dts))
+    tool, tilt = _tool_rows(arm, qs_arr, np.array(rs)[:, 4:])
+    out = np.column_stack([path.t + rows[0, 0], tool])
+    return ArmPlan(path, out, qs_arr[-1], np.array(src), replanned, tilt if replanned else 0.0)
+
+
+def _hand_checker(arm: Arm, links, tool_valid):
+    """is_valid(q) for a joint-space move: the links clear, the tool pointing down within
+    TILT (a held block stays upright, and the particle worlds simulate a gripper pointing
+    down) and the gripper itself clear at the tool's pose (`tool_valid(x, y, z, yaw)`)."""
+    def is_valid(q: np.ndarray) -> bool:
+        if not links(q):
+            return False
+        t = arm.tool(q)
+        if -float(t[2, 2]) < math.cos(TILT):
+            return False
+        return tool_valid is None or bool(tool_valid(np.array([*t[:3, 3], math.atan2(t[1, 0], t[0, 0])])))
+    return is_valid
+
+
+def _bridge(arm: Arm, is_valid, qa: np.ndarray, qb: np.ndarray, seed: int) -> np.ndarray:
+    """A joint-space path from `qa` to `qb` (RRT*, straight first: between two poses of
+    one wrist branch pointing down the straight joint segment keeps the tool down, since
+    the wrist's second joint stays put and the three parallel axes' sum moves linearly)."""
+    try:
+        return plan_joint_rrtstar(qa, qb, is_valid, arm.low, arm.high, seed=seed, iterations=RRT_ITERATIONS,
+                                  resolution=0.05, validity_resolution=CHECK_STEP)
+    except MotionPlanningError as exc:
+        raise ArmPlanningError(f"joint-space transit: {exc}") from None

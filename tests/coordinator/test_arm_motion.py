@@ -1,0 +1,92 @@
+"""Issue 41: a UR5e's joint trajectory for a step: the tool path followed to 1 mm, the joint
+limits kept, every link clear of the believed scene, the same for a seed; what a
+FollowJointTrajectory goal carries; a path the arm cannot take named, not crashed."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from coordinator.loop.arm_motion import ArmPlanningError, TOLERANCE, plan_arm_step, start_joints
+from coordinator.loop.reality import SimulatedReality
+from coordinator.loop.session import Session
+from coordinator.run_config import RunConfig
+from planner.motion.joint_space import densify_joints
+from sim_workers.robots.collision import links_checker
+
+
+def _first_step(robot: str, domain: str = "container"):
+    cfg = RunConfig(domain=domain, particles=4, true_size=0.045, episodes=1, seed=2, max_steps=5, robot=robot)
+    s = Session(cfg)
+    reality = SimulatedReality(domain, {"n_blocks": cfg.n_blocks}, s.props_of(s.truth_row()))
+    try:
+        s.start_episode(reality.start_episode(np.random.default_rng(0)))
+    finally:
+        reality.close()
+    return s, s.next_step()
+
+
+def _distance_to_path(p: np.ndarray, rows: np.ndarray) -> float:
+    """The distance from point p to the polyline through the rows' (x, y, z)."""
+    best = np.inf
+    for a, b in zip(rows[:-1, 1:4], rows[1:, 1:4]):
+        d = b - a
+        f = 0.0 if not d.any() else float(np.clip((p - a) @ d / (d @ d), 0.0, 1.0))
+        best = min(best, float(np.linalg.norm(a + f * d - p)))
+    return best
+
+
+@pytest.fixture(scope="module")
+def steps():
+    return _first_step("gripper"), _first_step("ur5e")
+
+
+def test_the_arm_follows_the_tool_path_within_its_limits_and_clear_of_the_scene(steps):
+    (_, gripper), (session, arm_step) = steps
+    assert gripper.joint_trajectory is None and "joint_trajectory" not in gripper.to_dict()
+    goal = arm_step.to_dict()["joint_trajectory"]
+    arm = session.robot
+    assert goal["joint_names"] == arm.joint_names
+    q = np.array([p["positions"] for p in goal["points"]])
+    v = np.array([p["velocities"] for p in goal["points"]])
+    a = np.array([p["accelerations"] for p in goal["points"]])
+    t = np.array([p["time_from_start"] for p in goal["points"]])
+    assert len(q) == len(arm_step.trajectory) >= len(gripper.trajectory)
+    assert np.all(np.diff(t) >= 0) and t[0] == 0.0
+    assert np.all(q >= arm.low) and np.all(q <= arm.high)
+    vmax = np.array([j.max_velocity for j in arm.joints])
+    assert np.all(np.abs(v) <= 1.02 * vmax) and np.all(np.abs(a) <= 1.02 * arm.acceleration)
+    # the tool: every point on the domain's path to 1 mm, and so is every joint-linear
+    # piece's middle; the step's rows are the arm's own tool path
+    for qi, row in zip(q, arm_step.trajectory):
+        tool = arm.tool(qi)
+        assert np.allclose(tool[:3, 3], row[1:4], atol=1e-9)
+        assert _distance_to_path(tool[:3, 3], gripper.trajectory) <= TOLERANCE + 1e-9
+    for qa, qb in zip(q[:-1], q[1:]):
+        assert _distance_to_path(arm.tool(0.5 * (qa + qb))[:3, 3], gripper.trajectory) <= TOLERANCE + 1e-6
+    # never faster than the domain timed the tool
+    assert arm_step.trajectory[-1, 0] - arm_step.trajectory[0, 0] >= 0.99 * (gripper.trajectory[-1, 0]
+                                                                               - gripper.trajectory[0, 0])
+    # every link clear of the believed scene, densely along the path
+    clear = links_checker(arm, session.domain.obstacles(session.observation.configuration,
+                                                        session.clearance_sizes()))
+    assert all(clear(qi) for qi in densify_joints(q, 0.01))
+
+
+def test_the_same_seed_gives_the_same_joint_trajectory(steps):
+    (_, _), (_, arm_step) = steps
+    _, again = _first_step("ur5e")
+    assert again.joint_trajectory == arm_step.joint_trajectory
+    assert np.array_equal(again.trajectory, arm_step.trajectory)
+
+
+def test_a_box_in_the_arm_s_way_is_named_and_a_domain_without_a_base_is_refused(steps):
+    (_, gripper), (session, _) = steps
+    arm = session.robot
+    config = session.observation.configuration
+    start = start_joints(arm, config.robot, [])
+    # a slab over the whole work area at the wrists' height: no way through
+    slab = [(np.array([0.0, 0.0, 0.3]), np.array([1.5, 1.5, 0.01]))]
+    with pytest.raises(ArmPlanningError, match="branch|meets|link"):
+        plan_arm_step(arm, gripper.trajectory, slab, start=start, seed=0, transit_end=None)
+    with pytest.raises(ValueError, match="robot: no robot 'ur6'"):
+        RunConfig(robot="ur6")
