@@ -152,7 +152,7 @@ class SessionManager:
         the domain); raises SessionConflict naming the field when it does not fit the scene."""
         s = live.session
         try:
-            return parse_observation(s.domain, s.task, s.n_blocks, body)
+            return parse_observation(s.domain, s.task, s.n_blocks, body, s.robot)
         except ObservationError as exc:
             raise SessionConflict(str(exc), exc.field) from None
 

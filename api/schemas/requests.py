@@ -313,6 +313,9 @@ class InitialObservation(BaseModel):
         None, description="the domain's measurement channels in order (GET /v1/domains/{name}: "
                           "finger opening, x, y per block, ...); null for a channel not measured; "
                           "default: read off the configuration")
+    joint_positions: Annotated[list[Coord], Field(min_length=1, max_length=16)] | None = Field(
+        None, description="an arm's measured joint positions (rad, in GET /v1/robots/{name}'s joint order): "
+                          "the next step's joint trajectory starts from them; only for a session with an arm")
 
 
 class StepObservation(InitialObservation):

@@ -429,6 +429,7 @@ class ShardPool:
         submit(0, n, self._targets())
         parts: dict[int, list[dict]] = {}
         reruns = 0
+        gone: list[_ShardRef] = []            # shards a node's dispatcher found ended for good
         t0 = time.perf_counter()
         while pending:
             ready, _ = ray.wait(list(pending), num_returns=len(pending), timeout=self.check_s)
@@ -447,6 +448,7 @@ class ShardPool:
                         submit(lo, hi, [t])
                         continue
                     reruns += out["reruns"]
+                    gone += [t.shards[i] for i in out.get("lost", ()) if i < len(t.shards)]
                     self.timings["node_calls"] += out["calls"]
                     self.timings["node_submit_s"] += out["submit_s"]
                     got = out["parts"]
@@ -475,6 +477,10 @@ class ShardPool:
                     submit(lo, hi, survivors)
                     reruns += 1
         self.timings["ray_s"] += time.perf_counter() - t0
+        if gone:
+            # forgotten now, not at the next re-plan: the node's dispatcher gets its new list
+            self._drop(gone)
+            self._sync_dispatchers()
         return [p for lo in sorted(parts) for p in parts[lo]], reruns
 
     def _resend_plan(self, node: _NodeRef) -> None:

@@ -68,7 +68,8 @@ class NodeDispatcher:
         """``method(*args)`` on this node's shards, rows 0..n of the `sliced` arguments
         split contiguously over them. Returns ``parts`` (the shards' results, row order),
         ``reruns`` (slices re-run here because a shard ended for good), and ``calls`` and
-        ``submit_s`` (the shard calls it made and its time submitting them); or ``stale``
+        ``submit_s`` (the shard calls it made and its time submitting them), ``lost`` (the
+        plan's indices of shards that ended for good, for the pool to forget); or ``stale``
         if this dispatcher does not hold the pool's plan `epoch` (Ray restarted it with
         its first shard list, or the plan's ``set_shards`` has not arrived): the pool
         sends the plan and calls again."""
@@ -77,9 +78,10 @@ class NodeDispatcher:
         if epoch != self.epoch:
             return {"stale": True, "epoch": self.epoch}
         sliced = tuple(sliced)
+        plan = list(self.shards)           # the plan's order: the pool is told lost shards by it
         parts: dict[int, dict] = {}
         todo = [(0, n)]
-        reruns, submit_s, n_calls = 0, 0.0, 0
+        reruns, submit_s, n_calls, lost = 0, 0.0, 0, []
         while todo:
             shards = list(self.shards)
             if not shards:
@@ -97,11 +99,12 @@ class NodeDispatcher:
                     parts[a] = await ref
                 except ray.exceptions.RayActorError:
                     self.shards = [x for x in self.shards if x is not s]
+                    lost += [i for i, x in enumerate(plan) if x is s and i not in lost]
                     todo.append((a, b))
             reruns += len(todo)
         self.reruns += reruns
         return {"parts": [parts[a] for a in sorted(parts)], "reruns": reruns,
-                "submit_s": submit_s, "calls": n_calls}
+                "submit_s": submit_s, "calls": n_calls, "lost": sorted(lost)}
 
     def ping(self) -> dict:
         """The plan this dispatcher holds (epoch, shard count) and its process id."""

@@ -21,23 +21,50 @@ class ObservationError(ValueError):
         self.field = field
 
 
-def parse_observation(physics, task, n_blocks: int, body: dict) -> tuple[Observation, dict]:
+def parse_observation(physics, task, n_blocks: int, body: dict, robot=None) -> tuple[Observation, dict]:
     """The Observation of `body` ({configuration: {robot, objects}, state?, measurements?})
     in the scene of `physics` (the domain's physics half) and `task` (its task half), and
     its canonical JSON form (what is stored and replayed). A missing state is derived from
-    the configuration, missing measurements are measured from it. Raises ObservationError."""
+    the configuration, missing measurements are measured from it; `joint_positions`, an
+    arm's measured joints, are checked against `robot` (the session's arm; None: the floating
+    gripper, which has none to report). Raises ObservationError."""
     config = _configuration(physics, body["configuration"])
     state = _state(physics, task, n_blocks, config, body.get("state"))
     meas = _measurements(physics, config, body.get("measurements"))
     canonical = {"configuration": config.to_dict(), "state": sorted(state),
                  "measurements": [None if np.isnan(v) else float(v) for v in meas]}
-    return Observation(config, frozenset(state), meas), canonical
+    joints = _joints(robot, body.get("joint_positions"))
+    if joints is not None:
+        canonical["joint_positions"] = joints.tolist()
+    return Observation(config, frozenset(state), meas, joints), canonical
 
 
 def from_canonical(d: dict) -> Observation:
     """The Observation of a stored canonical form (see parse_observation)."""
+    joints = d.get("joint_positions")
     return Observation(Configuration.from_dict(d["configuration"]), frozenset(d["state"]),
-                       np.array([np.nan if v is None else v for v in d["measurements"]], dtype=float))
+                       np.array([np.nan if v is None else v for v in d["measurements"]], dtype=float),
+                       None if joints is None else np.array(joints, dtype=float))
+
+
+def _joints(robot, values: list | None) -> np.ndarray | None:
+    """An arm's measured joint positions, checked against its joints and limits."""
+    if values is None:
+        return None
+    if robot is None:
+        raise ObservationError("joint_positions: this session's robot is the floating gripper, which has "
+                               "no joints to report (create the session with an arm, e.g. robot ur5e)",
+                               "joint_positions")
+    q = np.array(values, dtype=float)
+    if q.shape != (len(robot.joints),):
+        raise ObservationError(f"joint_positions: {q.size} values, the {robot.name} has {len(robot.joints)} "
+                               f"joints ({', '.join(robot.joint_names)})", "joint_positions")
+    out = np.flatnonzero((q < robot.low - 1e-6) | (q > robot.high + 1e-6))
+    if out.size:
+        j = robot.joints[int(out[0])]
+        raise ObservationError(f"joint_positions: {j.name} = {q[out[0]]:.4g} rad is outside its limits "
+                               f"[{j.low:.4g}, {j.high:.4g}]", "joint_positions")
+    return q
 
 
 def _configuration(physics, conf: dict) -> Configuration:

@@ -26,6 +26,9 @@ class Observation:
     configuration: Configuration
     state: frozenset[str]
     measurements: np.ndarray
+    # An arm's measured joint positions (rad), when the robot reports them (issue 41): the
+    # next step's joint trajectory starts from them.
+    joint_positions: np.ndarray | None = None
 
 
 class Reality(Protocol):

@@ -346,7 +346,8 @@ class Session:
         try:
             sizes = self.clearance_sizes()
             obstacles = self.domain.obstacles(config, sizes)
-            start = self.joints
+            measured = self.observation.joint_positions
+            start = self.joints if measured is None else measured       # what the arm reports wins
             if start is None:
                 start = start_joints(self.robot, config.robot, obstacles)
             elif np.abs(self.robot.tool(start)[:3, 3] - config.robot[:3]).max() > 1e-3:

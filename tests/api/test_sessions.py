@@ -261,9 +261,17 @@ def test_an_arm_s_session_steps_carry_a_joint_trajectory_a_client_can_check(clie
             assert abs(point["time_from_start"] - (row[0] - step["trajectory"][0][0])) < 1e-9
             assert max(abs(v) for v in point["velocities"]) <= 1.02 * ur5e["joints"][0]["max_velocity"]
         outcome = robot.execute(np.array(step["trajectory"]), step["action"])
-        r = client.post(f"/v1/sessions/{sid}/observations", json=_observation(outcome, step))
+        # the arm reports its joints: the next step starts from them; a wrong count is named
+        measured = list(goal["points"][-1]["positions"])
+        bad = client.post(f"/v1/sessions/{sid}/observations",
+                          json=_observation(outcome, step, joint_positions=measured[:5]))
+        assert bad.status_code == 409 and "joint_positions" in bad.text and "6 joints" in bad.text
+        r = client.post(f"/v1/sessions/{sid}/observations",
+                        json=_observation(outcome, step, joint_positions=measured))
         assert r.status_code == 200, r.text
         step, n = r.json()["next"], n + 1
+        if step is not None:
+            assert step["joint_trajectory"]["points"][0]["positions"] == measured
     assert n == 2
     bad = client.post("/v1/sessions", json={"robot": "ur6", "observation": _observation(start)})
     assert bad.status_code == 422 and "robot" in bad.text

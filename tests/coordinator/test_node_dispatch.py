@@ -127,7 +127,14 @@ def test_a_shard_lost_for_good_has_its_rows_rerun_on_the_node(ray_cluster):
         assert again["reruns"] == 1
         (node,) = pool._nodes.values()
         assert ray.get(node.actor.ping.remote(), timeout=60)["shards"] == 1
+        # the pool forgets it at once (not at the next re-plan): one shard, a new plan held
+        # by the dispatcher, and the next action runs with no re-run
+        assert pool.n_shards == 1 and len(node.shards) == 1
+        assert ray.get(node.actor.ping.remote(), timeout=60)["epoch"] == node.epoch
+        third = push()
+        assert third["reruns"] == 0
     _same(first, again)
+    _same(first, third)
 
 
 @pytest.mark.slow
