@@ -345,11 +345,16 @@ class RunConfig(BaseModel):
         if self.robot not in names():
             raise ValueError(f"robot: no robot {self.robot!r} (known: {', '.join(names())}; tmoc robots)")
         if robot(self.robot).kind == "arm":
-            from coordinator.domains import load
+            from coordinator.domains import load, options_of
 
-            if getattr(load(self.domain, n_blocks=self.n_blocks).physics, "robot_base", None) is None:
+            phys = load(self.domain, n_blocks=self.n_blocks).physics
+            if getattr(phys, "robot_base", None) is None:
                 raise ValueError(f"robot: domain {self.domain!r} declares no robot_base, so the arm "
                                  f"{self.robot!r} has nowhere to stand")
+            # A domain that can push with the open front finger does so for an arm (its wrist
+            # then clears the tower or the tray: docs/SERVICE.md), unless the run says otherwise.
+            if "push_open" in options_of(phys) and "push_open" not in self.options:
+                self.options = {**self.options, "push_open": True}
         return self
 
     @model_validator(mode="after")

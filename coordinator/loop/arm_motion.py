@@ -22,7 +22,7 @@ from sim_workers.robots.base import Arm, tool_pose
 from sim_workers.robots.collision import links_checker
 from sim_workers.robots.kinematics import frames, nearest
 
-__all__ = ["ArmPlan", "ArmPlanningError", "belief_scene_size", "plan_arm_step", "robot_of",
+__all__ = ["ArmPlan", "ArmPlanningError", "belief_scene_size", "contact_time", "plan_arm_step", "robot_of",
            "start_joints"]
 
 TOLERANCE = 1e-3        # m: the arm's tool stays this near the step's tool path (issue 41's aim)
@@ -33,6 +33,7 @@ CHECK_STEP = 0.01       # rad between link checks along a joint segment (~8 mm o
 QUANTILE = 0.975        # the believed size the links clear: a tower wider than believed is cleared too
 RRT_ITERATIONS = 300
 TILT = 0.05             # rad the tool may tilt from pointing down in a joint-space move (~3 degrees)
+HAND_RADIUS = 0.065     # m: a tilted gripper's capsule, its palm's half width (55 mm) plus 10 mm
 
 
 class ArmPlanningError(MotionPlanningError):
@@ -57,6 +58,15 @@ class ArmPlan:
         """The arm's time at the last point that stands for a time <= `t_rows` of the step's rows."""
         k = np.flatnonzero(self.source_t <= t_rows + 1e-9)
         return float(self.rows[k[-1], 0]) if k.size else float(self.rows[0, 0])
+
+
+def contact_time(rows: np.ndarray, key: np.ndarray, after: float = 0.0) -> float | None:
+    """The time of the first row at or after `after` whose tool point is the key pose's
+    (x, y, z): where the action starts handling things; None if no row is."""
+    rows = np.asarray(rows, dtype=np.float64)
+    hit = np.flatnonzero((rows[:, 0] >= after - 1e-9)
+                         & (np.abs(rows[:, 1:4] - np.asarray(key, dtype=np.float64)[:3]).max(axis=1) < 1e-9))
+    return float(rows[hit[0], 0]) if hit.size else None
 
 
 def robot_of(name: str, physics) -> Arm | None:
@@ -151,92 +161,179 @@ def _tool_rows(arm: Arm, qs: np.ndarray, extra: np.ndarray) -> tuple[np.ndarray,
     return np.array(out), tilt
 
 
+class _Path:
+    """Joint waypoints under construction, with the tool rows they stand for."""
+
+    def __init__(self, q: np.ndarray, row: np.ndarray) -> None:
+        self.qs, self.rs, self.dts, self.src = [q], [row[1:]], [], [row[0]]
+
+    def add(self, qs, rs, dts, src) -> None:
+        self.qs += list(qs)
+        self.rs += list(rs)
+        self.dts += list(dts)
+        self.src += list(src)
+
+    def extend(self, other: "_Path") -> None:
+        self.add(other.qs[1:], other.rs[1:], other.dts, other.src[1:])
+
+
+def _why(links, qa: np.ndarray, piece_qs: np.ndarray, blocked: int) -> str:
+    hit = next((links.contact(q) for q in densify_joints(piece_qs[blocked:blocked + 2], CHECK_STEP)
+                if not links(q)), None)
+    if hit is None:
+        return "a link meets the believed scene"
+    return f"the {hit[0]} meets " + ("the table" if hit[1] < 0 else f"obstacle {hit[1]}")
+
+
+def _follow_rows(arm: Arm, rows: np.ndarray, q: np.ndarray, scene, table, contact_from) -> _Path:
+    """Follow every row from joints `q` (at rows[0]); ArmPlanningError names the first
+    gap that cannot be followed or meets the scene."""
+    path = _Path(q, rows[0])
+    for i in range(len(rows) - 1):
+        qa = path.qs[-1]
+        links = scene if contact_from is None or rows[i + 1, 0] <= contact_from + 1e-9 else table
+        try:
+            qb = arm.joints_for(*rows[i + 1, 1:5], qa)
+            piece = _follow(arm, qa, qb, rows[i, 1:], rows[i + 1, 1:])
+        except (Unreachable, ArmPlanningError) as exc:
+            raise ArmPlanningError(f"rows {i}-{i + 1} ({np.round(rows[i + 1, 1:5], 4).tolist()}): {exc}") from None
+        piece_qs = np.array([qa] + [p[0] for p in piece])
+        blocked = _segments_clear(piece_qs, links)
+        if blocked is not None:
+            raise ArmPlanningError(f"rows {i}-{i + 1} ({np.round(rows[i + 1, 1:5], 4).tolist()}): "
+                                   + _why(links, qa, piece_qs, blocked))
+        dt = (rows[i + 1, 0] - rows[i, 0]) / len(piece)
+        path.add([p[0] for p in piece], [p[1] for p in piece], [dt] * len(piece),
+                 rows[i, 0] + dt * np.arange(1, len(piece) + 1))
+    return path
+
+
+def _branches_at(arm: Arm, row: np.ndarray, near: np.ndarray) -> list[np.ndarray]:
+    """Every branch of the inverse at a row's tool pose within the limits, each on the turn
+    nearest `near`, nearest first."""
+    out = []
+    for branch in arm.branches(tool_pose(*row[1:5]), float(near[5])):
+        try:
+            out.append(nearest(branch[None, :], near, arm.low, arm.high))
+        except Unreachable:
+            continue
+    return sorted(out, key=lambda q: (float(np.abs(q - near).max()), float(np.abs(q - near).sum())))
+
+
 def plan_arm_step(arm: Arm, rows: np.ndarray, obstacles: list, *, start: np.ndarray, seed: int,
-                  transit_end: float | None = None, tool_valid=None) -> ArmPlan:
+                  transit_end: float | None = None, tool_valid=None,
+                  contact_from: float | None = None, held: float = 0.0) -> ArmPlan:
     """The arm's plan for a step's tool `rows` (T, 6+): t, x, y, z, yaw, opening (and the
     efforts), from joints `start`, every link clear of `obstacles` (boxes as a domain's
-    ``obstacles`` at the believed sizes). Rows up to `transit_end` (s) are the transit: a
-    span there that cannot be followed is planned in joint space, the gripper (and what it
-    holds) checked at the tool's pose by `tool_valid(q4)` (the domain's transit check).
-    Raises ArmPlanningError when no plan exists."""
+    ``obstacles`` at the believed sizes).
+
+    The rows are followed from the branch nearest `start`. Where that fails and the rows up
+    to `transit_end` (s) are a transit, the transit is planned in joint space instead
+    (RRT*), to the first branch at its end, nearest first, from which the rest of the rows
+    can be followed: the gripper (and what it holds) checked at the tool's pose by
+    `tool_valid(q4)` (the domain's transit check) while the tool points down; an empty hand
+    (`held` 0) may tilt on the way, a capsule round the gripper then checked instead. From
+    `contact_from` (s: the key pose, where the action starts moving what it handles: a
+    pushed tray and its pile, a lifted block) the scene as observed is no longer the scene,
+    so the links are checked against the table alone there. Raises ArmPlanningError when
+    no plan exists."""
     rows = np.asarray(rows, dtype=np.float64)
-    links = links_checker(arm, obstacles)
-    hand = _hand_checker(arm, links, tool_valid)
+    scene = links_checker(arm, obstacles)
+    table = links_checker(arm, [])
+    hand = _hand_checker(arm, obstacles, scene, tool_valid, held)
     start = np.asarray(start, dtype=np.float64)
     try:
         q0 = arm.joints_for(*rows[0, 1:5], start)
     except Unreachable as exc:
         raise ArmPlanningError(f"row 0 ({np.round(rows[0, 1:5], 4).tolist()}): {exc}") from None
-    qs, rs, dts, src = [start], [rows[0, 1:]], [], [rows[0, 0]]
+    path = _Path(start, rows[0])
+    if np.abs(q0 - start).max() > 1e-6:
+        # To the step's first pose from where the arm stands (the tool a little off it, or
+        # on another turn of a joint): a joint move checked for the links alone, since the
+        # fingers may start at what the last action left them touching.
+        bridge = _bridge(arm, table, start, q0, seed)
+        n = len(bridge) - 1
+        path.add(bridge[1:], [rows[0, 1:]] * n, [0.0] * n, [rows[0, 0]] * n)
     replanned = 0
-    if np.abs(q0 - start).max() > 1e-6:        # to the step's first pose: a joint move
-        bridge = _bridge(arm, hand, start, q0, seed)
-        qs += list(bridge[1:])
-        rs += [rows[0, 1:]] * (len(bridge) - 1)
-        dts += [0.0] * (len(bridge) - 1)
-        src += [rows[0, 0]] * (len(bridge) - 1)
-    i = 0
-    while i < len(rows) - 1:
-        qa = qs[-1]
-        try:
-            qb = arm.joints_for(*rows[i + 1, 1:5], qa)
-            piece = _follow(arm, qa, qb, rows[i, 1:], rows[i + 1, 1:])
-            blocked = _segments_clear(np.array([qa] + [p[0] for p in piece]), links)
-        except (Unreachable, ArmPlanningError) as exc:
-            piece, blocked, why = None, 0, str(exc)
+    try:
+        path.extend(_follow_rows(arm, rows, q0, scene, table, contact_from))
+    except ArmPlanningError as followed:
+        ends = np.flatnonzero(rows[:, 0] <= transit_end + 1e-9) if transit_end else np.zeros(0, dtype=int)
+        if not ends.size or ends[-1] == 0:
+            raise
+        j = int(ends[-1])
+        why = str(followed)
+        # the bridge leaves from the last transit row the hand is clear at, following the
+        # domain's path there (a step may start with the fingers at a block: up first)
+        k, head = 0, _Path(q0, rows[0])
+        if not hand(q0):
+            for k in range(1, j + 1):
+                try:
+                    head = _follow_rows(arm, rows[:k + 1], q0, scene, table, contact_from)
+                except ArmPlanningError:
+                    raise followed from None
+                if hand(head.qs[-1]):
+                    break
+            else:
+                raise followed from None
+        qk = head.qs[-1]
+        for qj in _branches_at(arm, rows[j], qk):
+            hit = scene.contact(qj)
+            if hit is not None:
+                why = (f"row {j} ({np.round(rows[j, 1:5], 4).tolist()}), where the transit ends: the {hit[0]} meets "
+                       + ("the table" if hit[1] < 0 else f"obstacle {hit[1]}") + " on every branch")
+                continue
+            try:
+                rest = _follow_rows(arm, rows[j:], qj, scene, table, contact_from)
+                bridge = _bridge(arm, hand, qk, qj, seed + j)
+            except ArmPlanningError as exc:
+                why = str(exc)
+                continue
+            n = len(bridge) - 1
+            path.extend(head)
+            path.add(bridge[1:], [rows[j, 1:]] * n, [0.0] * n, [rows[k, 0]] * (n - 1) + [rows[j, 0]])
+            path.extend(rest)
+            replanned = n
+            break
         else:
-            hit = None if blocked is None else next((links.contact(q) for q in densify_joints(
-                np.array([qa] + [p[0] for p in piece])[blocked:blocked + 2], CHECK_STEP) if not links(q)), None)
-            why = ("a link meets the believed scene" if hit is None else
-                   f"the {hit[0]} meets " + ("the table" if hit[1] < 0 else f"obstacle {hit[1]}"))
-        if blocked is None:
-            dt = (rows[i + 1, 0] - rows[i, 0]) / len(piece)
-            qs += [p[0] for p in piece]
-            rs += [p[1] for p in piece]
-            dts += [dt] * len(piece)
-            src += list(rows[i, 0] + dt * np.arange(1, len(piece) + 1))
-            i += 1
-            continue
-        if transit_end is None or rows[i + 1, 0] > transit_end + 1e-9:
-            raise ArmPlanningError(f"rows {i}-{i + 1} ({np.round(rows[i + 1, 1:5], 4).tolist()}): {why}")
-        # the rest of the transit in joint space: from here to the transit's last row
-        j = int(np.flatnonzero(rows[:, 0] <= transit_end + 1e-9)[-1])
-        try:
-            qj = arm.joints_for(*rows[j, 1:5], qa)
-        except Unreachable as exc:
-            raise ArmPlanningError(f"row {j}: {exc}") from None
-        hit = links.contact(qj)
-        if hit is not None:
-            raise ArmPlanningError(f"row {j} ({np.round(rows[j, 1:5], 4).tolist()}), where the transit ends: "
-                                   f"the {hit[0]} meets " + ("the table" if hit[1] < 0 else f"obstacle {hit[1]}")
-                                   + " (the tool path there leaves the arm no room)")
-        bridge = _bridge(arm, hand, qa, qj, seed + i)
-        qs += list(bridge[1:])
-        rs += [rows[j, 1:]] * (len(bridge) - 1)
-        dts += [0.0] * (len(bridge) - 1)
-        src += [rows[i, 0]] * (len(bridge) - 2) + [rows[j, 0]]
-        replanned += len(bridge) - 1
-        i = j
-    qs_arr = np.array(qs)
-    path = time_joint_path(qs_arr, np.array([j.max_velocity for j in arm.joints]),
-                           np.full(len(arm.joints), arm.acceleration), nominal_dt=np.array(dts))
-    tool, tilt = _tool_rows(arm, qs_arr, np.array(rs)[:, 4:])
-    out = np.column_stack([path.t + rows[0, 0], tool])
-    return ArmPlan(path, out, qs_arr[-1], np.array(src), replanned, tilt if replanned else 0.0)
+            raise ArmPlanningError(why) from None
+    qs_arr = np.array(path.qs)
+    timed = time_joint_path(qs_arr, np.array([jt.max_velocity for jt in arm.joints]),
+                            np.full(len(arm.joints), arm.acceleration), nominal_dt=np.array(path.dts))
+    tool, tilt = _tool_rows(arm, qs_arr, np.array(path.rs)[:, 4:])
+    out = np.column_stack([timed.t + rows[0, 0], tool])
+    return ArmPlan(timed, out, qs_arr[-1], np.array(path.src), replanned, tilt if replanned else 0.0)
 
 
-def _hand_checker(arm: Arm, links, tool_valid):
-    """is_valid(q) for a joint-space move: the links clear, the tool pointing down within
-    TILT (a held block stays upright, and the particle worlds simulate a gripper pointing
-    down) and the gripper itself clear at the tool's pose (`tool_valid(x, y, z, yaw)`)."""
+def _hand_checker(arm: Arm, obstacles: list, links, tool_valid, held: float):
+    """is_valid(q) for a joint-space move: the links clear, and the gripper clear. Pointing
+    down (within TILT) the gripper and what it holds are checked at the tool's pose by
+    `tool_valid(x, y, z, yaw)` (the domain's transit check). An empty hand may tilt on the
+    way (the particle worlds skip a checked transit: nothing is touched in free space): it
+    is then a capsule of HAND_RADIUS from the flange to the fingertips. A held block (side
+    `held` > 0) keeps the tool pointing down: it must stay upright."""
+    tool_end = float(arm.flange_to_tool[2, 3])
+    hand = links_checker(_with_hand(arm, tool_end), obstacles)
+
     def is_valid(q: np.ndarray) -> bool:
         if not links(q):
             return False
         t = arm.tool(q)
-        if -float(t[2, 2]) < math.cos(TILT):
-            return False
-        return tool_valid is None or bool(tool_valid(np.array([*t[:3, 3], math.atan2(t[1, 0], t[0, 0])])))
+        if -float(t[2, 2]) >= math.cos(TILT):
+            return tool_valid is None or bool(tool_valid(np.array([*t[:3, 3], math.atan2(t[1, 0], t[0, 0])])))
+        return held <= 0.0 and hand(q)
     return is_valid
+
+
+def _with_hand(arm: Arm, tool_end: float) -> Arm:
+    """The arm with its gripper as one more link: a capsule from the flange to the fingertips."""
+    import copy
+
+    from sim_workers.robots.collision import Capsule
+
+    out = copy.copy(arm)
+    out.links = tuple(arm.links) + (Capsule("hand", 6, (0.0, 0.0, 0.0), (0.0, 0.0, tool_end), HAND_RADIUS),)
+    return out
 
 
 def _bridge(arm: Arm, is_valid, qa: np.ndarray, qb: np.ndarray, seed: int) -> np.ndarray:

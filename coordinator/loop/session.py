@@ -42,7 +42,7 @@ from ..run_config import AGENT_STREAM, COUNTERFACTUAL_STREAM, RunConfig, seed_st
 from .step_record import step_record
 from .transit import plan_pre_pose_transit, transit_checker
 from planner.motion import MotionPlanningError
-from .arm_motion import belief_scene_size, plan_arm_step, robot_of, start_joints
+from .arm_motion import belief_scene_size, contact_time, plan_arm_step, robot_of, start_joints
 from sim_workers.robots import Unreachable
 from ..transition.transition_model import TransitionModel, transition_table
 
@@ -356,7 +356,9 @@ class Session:
             plan = plan_arm_step(self.robot, step.trajectory, obstacles, start=start,
                                  seed=int(self.rng.integers(2**31)), transit_end=step.transit_end,
                                  tool_valid=transit_checker(self.domain, config, sizes, self._held_size(sizes),
-                                                            opening))
+                                                            opening),
+                                 contact_from=contact_time(step.trajectory, step.pose, step.transit_end),
+                                 held=self._held_size(sizes))
         except (MotionPlanningError, Unreachable) as exc:      # ArmPlanningError included
             self.plan = []
             self.stats.dead_end = f"the arm cannot {step.action}: {exc}"[:200]

@@ -61,6 +61,10 @@ class ContainerSpec:
     carry_height: float = 0.20
     push_tip_z: float = 0.008
     push_opening: float = 0.05
+    # Push with the front finger of the open gripper turned a quarter round (issue 41): an
+    # arm's wrist, on the tool's axis 0.10-0.15 m above the fingertips, then stays behind the
+    # pushing face instead of over the tray's wall. Runs with an arm set it (RunConfig).
+    push_open: bool = False
     push_speed: float = 0.50       # a brisk stroke: tall piles topple, low loads ride (probe-tuned)
     push_accel: float = 8.0
     move_speed: float = 0.30

@@ -10,6 +10,8 @@ tray, one column or two, is ``columns``' layout of the same hypothesis.
 """
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from ..configuration import Configuration, quat_from_yaw, rotate_z, yaw_of
@@ -108,6 +110,9 @@ def action_pose(spec: ContainerSpec, sizes: np.ndarray, config: Configuration, a
     c = config.objects[0]
     target = spec.location_xy(args[3])
     d = 1.0 if target[0] >= c[0] else -1.0
+    if spec.push_open:              # the open front finger's outer face pushes
+        x = c[0] - d * (spec.outer_half[0] + spec.max_opening / 2 + 2 * spec.finger_half[1] + spec.PUSH_CLEARANCE)
+        return np.array([x, c[1], spec.push_tip_z, 0.5 * math.pi, spec.max_opening])
     x = c[0] - d * (spec.outer_half[0] + spec.finger_half[0] + spec.PUSH_CLEARANCE)
     return np.array([x, c[1], spec.push_tip_z, 0.0, spec.push_opening])
 

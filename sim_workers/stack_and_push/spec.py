@@ -2,6 +2,8 @@
 physics settings (docs/BUILTIN_DOMAINS.md)."""
 from __future__ import annotations
 
+import math
+
 from dataclasses import dataclass
 
 import numpy as np
@@ -75,6 +77,11 @@ class StackAndPushSpec:
     carry_margin: float = 0.05
     push_tip_z: float = 0.008
     push_gap: float = 0.004         # pusher face behind the tower's rearmost believed face
+    # Push with the front finger of the open gripper turned a quarter round (issue 41): an
+    # arm's wrist, on the tool's axis 0.10-0.15 m above the fingertips, then stays 9 mm behind
+    # the pushing face instead of standing 33 mm inside a tower taller than 10 cm. Runs with
+    # an arm set it (RunConfig); the floating gripper pushes with closed fingers.
+    push_open: bool = False
     push_speed: float = 0.30        # m/s, stroke cruise speed (probe-tuned, see probes.py)
     push_accel: float = 2.0         # m/s^2, speeding up
     push_decel: float = 2.0         # m/s^2, slowing down at the goal
@@ -100,6 +107,18 @@ class StackAndPushSpec:
     @property
     def finger_length(self) -> float:
         return 2.0 * self.finger_half[2]
+
+    @property
+    def push_reach(self) -> float:
+        """How far ahead of the tool point the pushing face is: the closed fingers' half
+        width, or the open front finger's outer face."""
+        return self.max_opening / 2 + 2 * self.finger_half[1] if self.push_open else self.finger_half[0]
+
+    @property
+    def push_yaw(self) -> float:
+        """The gripper's yaw for a push: a quarter round when the open fingers push (their
+        opening then lies along the rail)."""
+        return 0.5 * math.pi if self.push_open else 0.0
 
     @property
     def palm_offset(self) -> float:

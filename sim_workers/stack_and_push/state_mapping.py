@@ -146,8 +146,8 @@ def action_pose(spec: StackAndPushSpec, sizes: np.ndarray, config: Configuration
         y = obj[chain[0], 1]
     else:
         rear, y = spec.start_x - 0.5 * float(np.max(sizes)), 0.0
-    x = rear - spec.finger_half[0] - spec.push_gap
-    return np.array([x, y, spec.push_tip_z, 0.0, 0.0])
+    x = rear - spec.push_reach - spec.push_gap
+    return np.array([x, y, spec.push_tip_z, spec.push_yaw, spec.max_opening if spec.push_open else 0.0])
 
 
 def action_poses(spec: StackAndPushSpec, sizes: np.ndarray, config: Configuration, action: str) -> np.ndarray:
@@ -192,8 +192,10 @@ def action_poses(spec: StackAndPushSpec, sizes: np.ndarray, config: Configuratio
         y_pos = obj[chain[0], 1]
     else:
         rear, y_pos = spec.start_x - 0.5 * np.max(sizes, axis=1), 0.0
-    out[:, 0] = rear - spec.finger_half[0] - spec.push_gap
+    out[:, 0] = rear - spec.push_reach - spec.push_gap
     out[:, 1], out[:, 2] = y_pos, spec.push_tip_z
+    if spec.push_open:
+        out[:, 3], out[:, 4] = spec.push_yaw, spec.max_opening
     return out
 
 

@@ -32,7 +32,7 @@ def pre_pose(spec: StackAndPushSpec, action: str, key: np.ndarray, holding: bool
     name, _ = parse_action(action)
     pre = np.asarray(key, dtype=np.float64)[:5].copy()    # a pose: Y's effort entry is not one
     pre[2] = pre[2] + (0.12 if name == "push" else spec.approach_height)
-    if name in ("stack", "push") or holding:
+    if name == "stack" or holding or (name == "push" and not spec.push_open):
         pre[4] = CLOSED
     return pre
 

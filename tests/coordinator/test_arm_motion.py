@@ -90,3 +90,56 @@ def test_a_box_in_the_arm_s_way_is_named_and_a_domain_without_a_base_is_refused(
         plan_arm_step(arm, gripper.trajectory, slab, start=start, seed=0, transit_end=None)
     with pytest.raises(ValueError, match="robot: no robot 'ur6'"):
         RunConfig(robot="ur6")
+
+
+def test_an_arm_pushes_with_the_open_front_finger_and_its_wrist_stays_behind():
+    """Issue 41: with a closed gripper the wrist stands 33 mm inside a tower taller than
+    10 cm; a run with an arm pushes with the open front finger turned a quarter round."""
+    from coordinator.domains import load
+    from sim_workers.stack_and_push import state_mapping
+
+    assert RunConfig(domain="stack_and_push", robot="ur5e").options["push_open"] is True
+    assert RunConfig(domain="container", robot="ur5e").options["push_open"] is True
+    assert "push_open" not in RunConfig(domain="container").options
+    assert RunConfig(domain="container", robot="ur5e", options={"push_open": False}).options["push_open"] is False
+    closed = load("stack_and_push").physics.spec
+    opened = load("stack_and_push", push_open=True).physics.spec
+    config = _first_step("gripper", "stack_and_push")[0].observation.configuration
+    sizes = np.full(closed.n_blocks, 0.045)
+    a = state_mapping.action_pose(closed, sizes, config, "push(r,tower,start,goal)")
+    b = state_mapping.action_pose(opened, sizes, config, "push(r,tower,start,goal)")
+    assert a[3] == 0.0 and a[4] == 0.0 and np.isclose(b[3], np.pi / 2) and b[4] == opened.max_opening
+    # the pushing face where it was: the front finger's outer face instead of the closed pair's
+    assert np.isclose(b[0] + opened.push_reach, a[0] + closed.push_reach)
+    # the UR5e's wrist (0.045 m round the tool's axis) is behind the open finger's face, not ahead
+    assert opened.push_reach > 0.045 > closed.push_reach
+    # the particle worlds' Y for every row is the same pose
+    rows = state_mapping.action_poses(opened, np.tile(sizes, (3, 1)), config, "push(r,tower,start,goal)")
+    assert np.allclose(rows, b)
+
+
+@pytest.mark.slow
+def test_the_ur5e_runs_a_container_episode_to_the_end():
+    """Issue 41: a whole container episode with the arm: every step planned (no dead end),
+    every trajectory within the joint limits, and the task done."""
+    cfg = RunConfig(domain="container", particles=8, true_size=0.045, episodes=1, seed=0, robot="ur5e")
+    s = Session(cfg)
+    reality = SimulatedReality("container", {"n_blocks": cfg.n_blocks}, s.props_of(s.truth_row()))
+    goals = []
+    real_execute = reality.execute
+
+    def execute(trajectory, action):
+        goals.append(s.pending.joint_trajectory)
+        return real_execute(trajectory, action)
+    reality.execute = execute
+    try:
+        ep = s.run_episode(reality, np.random.default_rng(0))
+    finally:
+        reality.close()
+    assert s.stats.dead_end is None and s.task.is_goal(s.state), (s.stats.dead_end, ep["utility"])
+    assert goals and all(g is not None for g in goals)
+    arm = s.robot
+    for g in goals:
+        q = np.array([p["positions"] for p in g["points"]])
+        assert np.all(q >= arm.low) and np.all(q <= arm.high)
+        assert np.abs([p["velocities"] for p in g["points"]]).max() <= 1.02 * np.pi
