@@ -58,6 +58,7 @@ def test_the_robots_as_a_client_checks_trajectories_with_them(client):
     ({"reality_fail": "fly:2"}, "reality_fail"),
     ({"engine": "ode"}, "engine"),
     ({"reality_engine": "bullet"}, "reality_engine"),
+    ({"robot": "ur6"}, "robot"),
 ])
 def test_a_bad_task_is_a_422_naming_the_field_and_nothing_is_stored(client, body, field):
     before = client.get("/v1/tasks", params={"limit": 200}).json()["items"]
