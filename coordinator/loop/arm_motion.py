@@ -208,6 +208,21 @@ def _follow_rows(arm: Arm, rows: np.ndarray, q: np.ndarray, scene, table, contac
     return path
 
 
+def _clear_head(arm: Arm, rows: np.ndarray, q0: np.ndarray, j: int, hand, scene, table, contact_from):
+    """The rows 0..k followed from `q0` up to the first k <= j where the hand is clear (a
+    step may start with the fingers at a block: up first), and k; (None, 0) if none is."""
+    if hand(q0):
+        return _Path(q0, rows[0]), 0
+    for k in range(1, j + 1):
+        try:
+            head = _follow_rows(arm, rows[:k + 1], q0, scene, table, contact_from)
+        except ArmPlanningError:
+            return None, 0
+        if hand(head.qs[-1]):
+            return head, k
+    return None, 0
+
+
 def _branches_at(arm: Arm, row: np.ndarray, near: np.ndarray) -> list[np.ndarray]:
     """Every branch of the inverse at a row's tool pose within the limits, each on the turn
     nearest `near`, nearest first."""
@@ -259,35 +274,25 @@ def plan_arm_step(arm: Arm, rows: np.ndarray, obstacles: list, *, start: np.ndar
         path.extend(_follow_rows(arm, rows, q0, scene, table, contact_from))
     except ArmPlanningError as followed:
         ends = np.flatnonzero(rows[:, 0] <= transit_end + 1e-9) if transit_end else np.zeros(0, dtype=int)
-        if not ends.size or ends[-1] == 0:
-            raise
-        j = int(ends[-1])
-        why = str(followed)
-        # the bridge leaves from the last transit row the hand is clear at, following the
-        # domain's path there (a step may start with the fingers at a block: up first)
-        k, head = 0, _Path(q0, rows[0])
-        if not hand(q0):
-            for k in range(1, j + 1):
-                try:
-                    head = _follow_rows(arm, rows[:k + 1], q0, scene, table, contact_from)
-                except ArmPlanningError:
-                    raise followed from None
-                if hand(head.qs[-1]):
-                    break
-            else:
-                raise followed from None
-        qk = head.qs[-1]
-        for qj in _branches_at(arm, rows[j], qk):
+        j = int(ends[-1]) if ends.size else 0
+        # The rows after j followed from another branch at row j, reached in joint space:
+        # the transit's end where the step has a transit, else the step's first row.
+        head, k = _clear_head(arm, rows, q0, j, hand, scene, table, contact_from)
+        if head is None:
+            raise followed from None
+        reasons: list[str] = []
+        for qj in _branches_at(arm, rows[j], head.qs[-1]):
+            if j == 0 and np.abs(qj - q0).max() < 1e-6:
+                continue                          # the branch that failed
             hit = scene.contact(qj)
             if hit is not None:
-                why = (f"row {j} ({np.round(rows[j, 1:5], 4).tolist()}), where the transit ends: the {hit[0]} meets "
-                       + ("the table" if hit[1] < 0 else f"obstacle {hit[1]}") + " on every branch")
+                reasons.append(f"the {hit[0]} meets " + ("the table" if hit[1] < 0 else f"obstacle {hit[1]}"))
                 continue
             try:
                 rest = _follow_rows(arm, rows[j:], qj, scene, table, contact_from)
-                bridge = _bridge(arm, hand, qk, qj, seed + j)
+                bridge = _bridge(arm, hand, head.qs[-1], qj, seed + j)
             except ArmPlanningError as exc:
-                why = str(exc)
+                reasons.append(str(exc).split(": ", 1)[-1])
                 continue
             n = len(bridge) - 1
             path.extend(head)
@@ -296,7 +301,8 @@ def plan_arm_step(arm: Arm, rows: np.ndarray, obstacles: list, *, start: np.ndar
             replanned = n
             break
         else:
-            raise ArmPlanningError(why) from None
+            tried = "; ".join(dict.fromkeys(reasons)) or "no other branch within the limits"
+            raise ArmPlanningError(f"{followed} (and from the other branches at row {j}: {tried})"[:400]) from None
     qs_arr = np.array(path.qs)
     timed = time_joint_path(qs_arr, np.array([jt.max_velocity for jt in arm.joints]),
                             np.full(len(arm.joints), arm.acceleration), nominal_dt=np.array(path.dts))
