@@ -10,6 +10,7 @@ This module is where the robot declarations (``sim_workers.robots``) meet the pl
 """
 from __future__ import annotations
 
+import copy
 import math
 from dataclasses import dataclass
 
@@ -19,7 +20,7 @@ from planner.motion import MotionPlanningError
 from planner.motion.joint_space import JointPath, densify_joints, plan_joint_rrtstar, time_joint_path
 from sim_workers.robots import Unreachable, robot
 from sim_workers.robots.base import Arm, tool_pose
-from sim_workers.robots.collision import links_checker
+from sim_workers.robots.collision import Capsule, links_checker
 from sim_workers.robots.kinematics import frames, nearest
 
 __all__ = ["ArmPlan", "ArmPlanningError", "belief_scene_size", "contact_time", "plan_arm_step", "robot_of",
@@ -177,7 +178,7 @@ class _Path:
         self.add(other.qs[1:], other.rs[1:], other.dts, other.src[1:])
 
 
-def _why(links, qa: np.ndarray, piece_qs: np.ndarray, blocked: int) -> str:
+def _why(links, piece_qs: np.ndarray, blocked: int) -> str:
     hit = next((links.contact(q) for q in densify_joints(piece_qs[blocked:blocked + 2], CHECK_STEP)
                 if not links(q)), None)
     if hit is None:
@@ -201,7 +202,7 @@ def _follow_rows(arm: Arm, rows: np.ndarray, q: np.ndarray, scene, table, contac
         blocked = _segments_clear(piece_qs, links)
         if blocked is not None:
             raise ArmPlanningError(f"rows {i}-{i + 1} ({np.round(rows[i + 1, 1:5], 4).tolist()}): "
-                                   + _why(links, qa, piece_qs, blocked))
+                                   + _why(links, piece_qs, blocked))
         dt = (rows[i + 1, 0] - rows[i, 0]) / len(piece)
         path.add([p[0] for p in piece], [p[1] for p in piece], [dt] * len(piece),
                  rows[i, 0] + dt * np.arange(1, len(piece) + 1))
@@ -333,10 +334,6 @@ def _hand_checker(arm: Arm, obstacles: list, links, tool_valid, held: float):
 
 def _with_hand(arm: Arm, tool_end: float) -> Arm:
     """The arm with its gripper as one more link: a capsule from the flange to the fingertips."""
-    import copy
-
-    from sim_workers.robots.collision import Capsule
-
     out = copy.copy(arm)
     out.links = tuple(arm.links) + (Capsule("hand", 6, (0.0, 0.0, 0.0), (0.0, 0.0, tool_end), HAND_RADIUS),)
     return out

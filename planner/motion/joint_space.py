@@ -14,12 +14,13 @@ from __future__ import annotations
 import math
 import operator
 import time
+from dataclasses import dataclass
 
 import numpy as np
 from ompl import base as ob
 from ompl import geometric as og
 
-from .geometry import IsValid, MotionPlanningError, _fmt, _positive
+from .geometry import IsValid, MotionPlanningError, _first_invalid, _fmt, _positive
 from .rrtstar import _OMPL_LOCK, _seed_ompl
 
 __all__ = ["JointPath", "densify_joints", "plan_joint_rrtstar", "time_joint_path"]
@@ -43,13 +44,6 @@ def densify_joints(points: np.ndarray, step: float) -> np.ndarray:
     dense = np.concatenate(out)
     dense[-1] = points[-1]
     return dense
-
-
-def _first_invalid(points: np.ndarray, is_valid: IsValid) -> int | None:
-    for i, q in enumerate(points):
-        if not is_valid(q):
-            return i
-    return None
 
 
 def plan_joint_rrtstar(start: np.ndarray, goal: np.ndarray, is_valid: IsValid, low: np.ndarray,
@@ -161,11 +155,14 @@ def _solve(start, goal, is_valid, low, high, *, seed, iterations, max_iterations
     return raw, path(), True
 
 
+@dataclass
 class JointPath:
     """A timed joint trajectory: times (M,), positions, velocities, accelerations (M, n)."""
 
-    def __init__(self, t: np.ndarray, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray) -> None:
-        self.t, self.q, self.qd, self.qdd = t, q, qd, qdd
+    t: np.ndarray
+    q: np.ndarray
+    qd: np.ndarray
+    qdd: np.ndarray
 
     def goal(self, joint_names: list[str]) -> dict:
         """As a ``control_msgs/FollowJointTrajectory`` goal's trajectory (JSON-ready)."""
@@ -261,5 +258,5 @@ def time_joint_path(waypoints: np.ndarray, max_velocity: np.ndarray, max_acceler
         t, v, acc = _time_run(w[a:b + 1], vmax, amax, None if nominal_dt is None else nominal[a:b])
         gap[a:b] = np.diff(t)
         qd[a:b + 1], qdd[a:b + 1] = v, acc
-        qd[[a, b]], qdd[b] = 0.0, qdd[b]     # rest to rest
+        qd[[a, b]] = 0.0                     # rest to rest
     return JointPath(np.concatenate([[0.0], np.cumsum(gap)]), w.copy(), qd, qdd)
