@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import copy
 import math
+import time
 from dataclasses import dataclass
 
 import numpy as np
@@ -34,6 +35,10 @@ CHECK_STEP = 0.01       # rad between link checks along a joint segment (~8 mm o
 QUANTILE = 0.975        # the believed size the links clear: a tower wider than believed is cleared too
 RRT_ITERATIONS = 300
 TILT = 0.05             # rad the tool may tilt from pointing down in a joint-space move (~3 degrees)
+# Wall-clock cap on one step's joint-space searches (each RRT* also stops at its iteration
+# count and 5 s): a step with many branches to try cannot hold a session's thread for long.
+# The measured slowest step took 7.7 s (benchmarks/bench_arm_motion.py).
+STEP_BUDGET_S = 10.0
 HAND_RADIUS = 0.065     # m: a tilted gripper's capsule, its palm's half width (55 mm) plus 10 mm
 
 
@@ -253,6 +258,7 @@ def plan_arm_step(arm: Arm, rows: np.ndarray, obstacles: list, *, start: np.ndar
     pushed tray and its pile, a lifted block) the scene as observed is no longer the scene,
     so the links are checked against the table alone there. Raises ArmPlanningError when
     no plan exists."""
+    deadline = time.perf_counter() + STEP_BUDGET_S
     rows = np.asarray(rows, dtype=np.float64)
     scene = links_checker(arm, obstacles)
     table = links_checker(arm, [])
@@ -267,7 +273,7 @@ def plan_arm_step(arm: Arm, rows: np.ndarray, obstacles: list, *, start: np.ndar
         # To the step's first pose from where the arm stands (the tool a little off it, or
         # on another turn of a joint): a joint move checked for the links alone, since the
         # fingers may start at what the last action left them touching.
-        bridge = _bridge(arm, table, start, q0, seed)
+        bridge = _bridge(arm, table, start, q0, seed, deadline)
         n = len(bridge) - 1
         path.add(bridge[1:], [rows[0, 1:]] * n, [0.0] * n, [rows[0, 0]] * n)
     replanned = 0
@@ -291,7 +297,7 @@ def plan_arm_step(arm: Arm, rows: np.ndarray, obstacles: list, *, start: np.ndar
                 continue
             try:
                 rest = _follow_rows(arm, rows[j:], qj, scene, table, contact_from)
-                bridge = _bridge(arm, hand, head.qs[-1], qj, seed + j)
+                bridge = _bridge(arm, hand, head.qs[-1], qj, seed + j, deadline)
             except ArmPlanningError as exc:
                 reasons.append(str(exc).split(": ", 1)[-1])
                 continue
@@ -339,12 +345,16 @@ def _with_hand(arm: Arm, tool_end: float) -> Arm:
     return out
 
 
-def _bridge(arm: Arm, is_valid, qa: np.ndarray, qb: np.ndarray, seed: int) -> np.ndarray:
+def _bridge(arm: Arm, is_valid, qa: np.ndarray, qb: np.ndarray, seed: int, deadline: float) -> np.ndarray:
     """A joint-space path from `qa` to `qb` (RRT*, straight first: between two poses of
     one wrist branch pointing down the straight joint segment keeps the tool down, since
-    the wrist's second joint stays put and the three parallel axes' sum moves linearly)."""
+    the wrist's second joint stays put and the three parallel axes' sum moves linearly).
+    Refused once the step's `deadline` (perf_counter seconds) has passed."""
+    left = deadline - time.perf_counter()
+    if left <= 0.0:
+        raise ArmPlanningError(f"joint-space transit: the step's planning budget of {STEP_BUDGET_S:g} s is spent")
     try:
         return plan_joint_rrtstar(qa, qb, is_valid, arm.low, arm.high, seed=seed, iterations=RRT_ITERATIONS,
-                                  resolution=0.05, validity_resolution=CHECK_STEP)
+                                  resolution=0.05, validity_resolution=CHECK_STEP, time_limit_s=min(5.0, left))
     except MotionPlanningError as exc:
         raise ArmPlanningError(f"joint-space transit: {exc}") from None

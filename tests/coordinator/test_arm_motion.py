@@ -143,3 +143,18 @@ def test_the_ur5e_runs_a_container_episode_to_the_end():
         q = np.array([p["positions"] for p in g["points"]])
         assert np.all(q >= arm.low) and np.all(q <= arm.high)
         assert np.abs([p["velocities"] for p in g["points"]]).max() <= 1.02 * np.pi
+
+
+def test_a_step_s_joint_space_searches_stop_at_its_budget(steps, monkeypatch):
+    """One step cannot hold a session's thread past STEP_BUDGET_S: with no budget left the
+    joint-space search is refused by name (here the move to the step's first pose)."""
+    import coordinator.loop.arm_motion as arm_motion
+
+    (_, gripper), (session, _) = steps
+    arm = session.robot
+    start = start_joints(arm, session.observation.configuration.robot, [])
+    monkeypatch.setattr(arm_motion, "STEP_BUDGET_S", 0.0)
+    far = start.copy()
+    far[0] += 1.0                       # the arm stands a joint turn away from the step's first pose
+    with pytest.raises(ArmPlanningError, match="planning budget of 0 s is spent"):
+        plan_arm_step(arm, gripper.trajectory, [], start=far, seed=0, transit_end=None)
