@@ -340,11 +340,13 @@ class RunConfig(BaseModel):
 
     @model_validator(mode="after")
     def _robot_is_registered(self) -> "RunConfig":
-        from sim_workers.robots import names, robot
+        from sim_workers.robots import RobotError, names, robot
 
-        if self.robot not in names():
-            raise ValueError(f"robot: no robot {self.robot!r} (known: {', '.join(names())}; tmoc robots)")
-        if robot(self.robot).kind == "arm":
+        try:
+            bot = robot(self.robot)        # the registry; installed plugins scanned only for a name it lacks
+        except RobotError:
+            raise ValueError(f"robot: no robot {self.robot!r} (known: {', '.join(names())}; tmoc robots)") from None
+        if bot.kind == "arm":
             from coordinator.domains import load, options_of
 
             phys = load(self.domain, n_blocks=self.n_blocks).physics
