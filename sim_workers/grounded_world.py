@@ -26,6 +26,7 @@ from . import reach
 from . import trajectory as tr
 from .configuration import Configuration, quat_from_yaw, rotate_z, yaw_of
 from .domains import Domain
+from .robots.motion import ArmMotion, link_boxes, link_poses
 
 REST_LINEAR = 0.004     # m/s: below this everything counts as at rest
 REST_ANGULAR = 0.04     # rad/s
@@ -96,6 +97,8 @@ class GroundedWorld(abc.ABC):
         self._fresh = False                            # no action since the last reset
         self.reruns = 0                                # actions the guard sent to the full world
         self.settle_s = float(domain.settle_s)
+        self._links_track = None                       # an arm's link poses per step of the action
+        self._link_cache = None                        # (motion, times key, poses) of the last one
         self._connect()
 
     # -- what an engine provides ---------------------------------------------------------
@@ -160,9 +163,21 @@ class GroundedWorld(abc.ABC):
         """Where the tool point was last commanded to (x, y, z)."""
         ...
 
-    def _leave_out(self, targets: np.ndarray):
-        """Remove the objects the action cannot reach; a guard, or None (nothing left out)."""
+    def _leave_out(self, targets: np.ndarray, link_boxes: np.ndarray | None = None):
+        """Remove the objects the action cannot reach (nor an arm's links, whose boxes at
+        every step are `link_boxes`); a guard, or None (nothing left out)."""
         return None
+
+    def _with_links(self, links: tuple) -> None:
+        """Make the scene hold an arm's link capsules `links` (``sim_workers.robots.collision
+        .Capsule``; () for none) as kinematic bodies that collide with the movable objects
+        (not with the gripper, which the arm carries, nor with the fixtures)."""
+        if links:
+            raise NotImplementedError(f"engine {self.engine!r}: an arm's links are not built")
+
+    def _place_links(self, positions: np.ndarray, quaternions: np.ndarray) -> None:
+        """Put the link capsules at world centres (L, 3) and quaternions (L, 4; x, y, z, w)."""
+        raise NotImplementedError
 
     # -- lifecycle ---------------------------------------------------------------------
     def __enter__(self) -> "GroundedWorld":
@@ -209,17 +224,22 @@ class GroundedWorld(abc.ABC):
         self._apply(Configuration(robot, objects))
 
     def execute(self, trajectory: np.ndarray, action: str, *, start_time: float = 0.0,
-                max_settle_s: float | None = None) -> Outcome:
+                max_settle_s: float | None = None, arm: ArmMotion | None = None) -> Outcome:
         """Follow `trajectory` (t, x, y, z, yaw, opening) then let the scene settle.
 
         Simulated time is bounded by the trajectory's end plus the settle time; it stops
-        early once every object is at rest after the trajectory has ended.
+        early once every object is at rest after the trajectory has ended. With `arm` (an
+        arm's joints over the same clock: ``sim_workers.robots.motion.ArmMotion``) the arm's
+        links move with it as kinematic bodies that push what they meet; a body a link's
+        sweep comes near is never left out.
         """
         traj = tr.validate(trajectory)
         if self.props is None:
             raise RuntimeError("world: reset() before execute()")
         if self._absent:
             raise RuntimeError("world: bodies were left out of the last action; reset() first")
+        bot = arm.arm() if arm is not None else None
+        self._with_links(bot.links if bot is not None else ())
         reduce = self.leave_out and self._fresh and self._leaves_out(action)
         self._fresh = False
         if start_time > 0.0:
@@ -229,7 +249,12 @@ class GroundedWorld(abc.ABC):
         settle = self.settle_s if max_settle_s is None else max_settle_s
         times = start_time + dt * np.arange(1, int(np.ceil((t_end - start_time + settle) / dt)) + 1)
         targets = tr.sample(traj, times)
-        watch = self._leave_out(targets) if reduce else None
+        self._links_track = None
+        if bot is not None:
+            pos, quat, moved = self._link_track(arm, bot, start_time, times)
+            self._place_links(pos[0], quat[0])
+            self._links_track = (pos[1:], quat[1:], moved)
+        watch = self._leave_out(targets, None if bot is None else link_boxes(bot, pos, quat)) if reduce else None
         outcome, steps = self._run(action, times, targets, t_end, watch)
         if outcome is None:
             # Something came near a left-out body: the same action in the full world,
@@ -237,11 +262,27 @@ class GroundedWorld(abc.ABC):
             self.reruns += 1
             self.reset(self._placed, self.props, place=False)
             self._fresh = False
+            if bot is not None:
+                self._with_links(bot.links)
+                self._place_links(pos[0], quat[0])
             if start_time > 0.0:
                 self.skip_to(traj, start_time)
             outcome, more = self._run(action, times, targets, t_end, None)
             outcome = replace(outcome, steps=steps + more)
         return outcome
+
+    def _link_track(self, arm: ArmMotion, bot, start_time: float, times: np.ndarray):
+        """The links' poses at `start_time` and at each step's time, and whether they moved
+        at each step; kept for the next call with the same motion and times (a shard's
+        batch runs one motion for every particle)."""
+        key = (start_time, len(times), float(times[0]) if len(times) else 0.0)
+        cached = self._link_cache
+        if cached is not None and cached[0] is arm and cached[1] == key:
+            return cached[2]
+        pos, quat = link_poses(bot, arm.at(np.concatenate([[start_time], times])))
+        moved = np.any(pos[1:] != pos[:-1], axis=(1, 2)) | np.any(quat[1:] != quat[:-1], axis=(1, 2))
+        self._link_cache = (arm, key, (pos, quat, moved))
+        return pos, quat, moved
 
     def _leaves_out(self, action: str) -> bool:
         """Whether the domain leaves bodies out of this kind of action (its
@@ -258,10 +299,13 @@ class GroundedWorld(abc.ABC):
         force, opening = [], []
         guarded = targets.shape[1] > 6 and bool(np.any(targets[:, 6] < self.domain.base_max_force))
         was_guarded, offset = False, np.zeros(3)
+        links = self._links_track
         for k, (t, target) in enumerate(zip(times, targets)):
             if guarded:
                 target, was_guarded, offset = self._guard(target, was_guarded, offset)
             self._set_gripper(target)
+            if links is not None and links[2][k]:
+                self._place_links(links[0][k], links[1][k])
             self._step()
             steps += 1
             if logging:

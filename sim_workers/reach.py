@@ -59,13 +59,15 @@ def gaps(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 
 def kept_objects(object_boxes: np.ndarray, gripper_box: np.ndarray, tool_point: np.ndarray,
-                 path: np.ndarray, widening: float = 0.0) -> np.ndarray:
+                 path: np.ndarray, widening: float = 0.0, link_boxes: np.ndarray | None = None) -> np.ndarray:
     """Boolean mask over objects: those an action can touch (see the module's docstring).
 
     object_boxes: (M, 6) at the start; gripper_box: (6,) gripper and fingers at the start;
     tool_point: (3,) the gripper's commanded tool point at the start; path: (T, 3) the
     tool points the action commands from then on; widening: how much wider (m) the
-    fingers open later than at the start.
+    fingers open later than at the start; link_boxes: (K, 6) an arm's link capsules at
+    every step of the action (their motion is commanded, so an object ``SWEEP_MARGIN`` clear
+    of every one of them, twice Bullet's contact threshold, is never touched by a link).
     """
     carried = gaps(gripper_box, object_boxes)[0] <= TOUCH
     moving = np.concatenate([gripper_box[None], object_boxes[carried]])
@@ -76,6 +78,11 @@ def kept_objects(object_boxes: np.ndarray, gripper_box: np.ndarray, tool_point: 
                             path.max(axis=0) + [radius, radius, hi[2]]])
     swept[2] = -np.inf                          # down to the floor: dropped things fall
     keep = (gaps(swept, object_boxes)[0] <= SWEEP_MARGIN) | carried
+    if link_boxes is not None and len(link_boxes):
+        near = np.concatenate([link_boxes.min(axis=0)[:3], link_boxes.max(axis=0)[3:]])
+        maybe = gaps(near, object_boxes)[0] <= SWEEP_MARGIN         # one box first: most are far
+        if maybe.any():
+            keep[maybe] |= gaps(link_boxes, object_boxes[maybe]).min(axis=0) <= SWEEP_MARGIN
     touching = gaps(object_boxes, object_boxes) <= TOUCH
     while True:                                 # resting contact, to a fixed point
         grown = keep | touching[keep].any(axis=0)

@@ -61,7 +61,7 @@ class Shard:
         self._batch = batch_cls(self.domain) if batch_cls is not None else None
 
     def simulate(self, start: np.ndarray, sizes: np.ndarray, action: str, trajectory: np.ndarray,
-                 start_time=0.0) -> dict:
+                 start_time=0.0, arm=None) -> dict:
         """Run `action` once per particle.
 
         start:      (5 + 7M,) flat observed configuration (re-grounded per particle)
@@ -70,6 +70,8 @@ class Shard:
                     or n_blocks)
         trajectory: (T, 6) shared by every particle ("replay") or (B, T, 6) one each ("paper")
         start_time: where to start in the trajectory (scalar, or (B,) one per particle)
+        arm:        an arm's joints over the shared trajectory (``sim_workers.robots.motion
+                    .ArmMotion``): every world moves the arm's links along them
         Returns arrays: configurations (B, 5 + 7M), states (B,) text, measurements (B, P),
         steps (B,).
         """
@@ -80,12 +82,15 @@ class Shard:
         if not shared and traj.shape[0] != len(sizes):
             raise ValueError(f"trajectory: {traj.shape[0]} trajectories for {len(sizes)} particles")
         starts = np.broadcast_to(np.asarray(start_time, dtype=np.float64), (len(sizes),))
+        if arm is not None and (not shared or self._batch is not None):
+            raise ValueError("arm: an arm's links follow one shared trajectory in a world engine "
+                             f"(not per-particle trajectories{', nor the batch engine' if self._batch else ''})")
 
         def run(world, rows) -> list:
             outs = []
             for b in rows:
                 world.reset(config, self._props(sizes[b]))
-                outs.append(world.execute(traj if shared else traj[b], action, start_time=float(starts[b])))
+                outs.append(world.execute(traj if shared else traj[b], action, start_time=float(starts[b]), arm=arm))
             return outs
 
         if self._batch is not None:
@@ -108,11 +113,11 @@ class Shard:
         return self.domain.props_from_row(row)
 
     def simulate_batch(self, start: np.ndarray, sizes: np.ndarray, action: str,
-                       trajectory: np.ndarray, start_time=0.0) -> dict:
+                       trajectory: np.ndarray, start_time=0.0, arm=None) -> dict:
         """``simulate`` plus where it ran (key ``node``: node_id, hostname, pid): the one
         remote call a pool makes per shard per action, so that it can tell which node
         simulated which particles even after Ray restarted this actor elsewhere."""
-        out = self.simulate(start, sizes, action, trajectory, start_time)
+        out = self.simulate(start, sizes, action, trajectory, start_time, arm)
         out["node"] = self.where()
         return out
 

@@ -339,23 +339,24 @@ class ShardPool:
 
     # -- simulation --------------------------------------------------------------------
     def simulate(self, start: np.ndarray, sizes: np.ndarray, action: str, trajectory: np.ndarray,
-                 start_time=0.0) -> dict:
+                 start_time=0.0, arm=None) -> dict:
         """Simulate `action` for every particle; results in particle order.
 
         The split into shards changes nothing in the results: every particle-action runs
         in a freshly built world (sim_workers.grounded_world). Besides the arrays, key
         ``nodes`` maps each node that answered to its hostname and particle-action count,
-        and ``reruns`` counts slices re-run because their node was lost.
+        and ``reruns`` counts slices re-run because their node was lost. `arm`: an arm's
+        joints (``sim_workers.robots.motion.ArmMotion``), sent whole to every shard.
         """
         sizes = np.asarray(sizes, dtype=np.float64)
         n = len(sizes)
         starts = np.broadcast_to(np.asarray(start_time, dtype=np.float64), (n,))
         traj = np.asarray(trajectory, dtype=np.float64)
         if self._local is not None:
-            parts = [self._local.simulate_batch(start, sizes, action, traj, starts)]
+            parts = [self._local.simulate_batch(start, sizes, action, traj, starts, arm)]
             reruns = 0
         else:
-            parts, reruns = self._fan_out(start, sizes, action, traj, starts)
+            parts, reruns = self._fan_out(start, sizes, action, traj, starts, arm)
         self.timings["calls"] += 1
         self.timings["reruns"] += reruns
         nodes: dict[str, dict] = {}
@@ -383,10 +384,11 @@ class ShardPool:
         self.timings["calls"] += 1
         return {"successes": np.concatenate([p["successes"] for p in parts])}
 
-    def _fan_out(self, start, sizes, action, traj, starts) -> tuple[list[dict], int]:
+    def _fan_out(self, start, sizes, action, traj, starts, arm=None) -> tuple[list[dict], int]:
         """One simulate call per node, or per shard (``_fan_out_slices``)."""
         sliced = (1, 3, 4) if traj.ndim == 3 else (1, 4)
-        return self._fan_out_slices(len(sizes), "simulate_batch", (start, sizes, action, traj, starts), sliced)
+        args = (start, sizes, action, traj, starts) + (() if arm is None else (arm,))
+        return self._fan_out_slices(len(sizes), "simulate_batch", args, sliced)
 
     def _targets(self) -> list:
         """Where the driver sends calls: the nodes' dispatchers, or every shard."""

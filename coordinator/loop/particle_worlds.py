@@ -16,19 +16,22 @@ __all__ = ["simulate_rows", "perception_nodes", "predictions"]
 
 
 def simulate_rows(pool, domain, config, start: np.ndarray, rows: np.ndarray, action: str, trajectory,
-                  start_time) -> dict:
+                  start_time, arm=None) -> dict:
     """The shards' result at the perceived configuration `start`, with ``particle_actions``
     and ``particle_steps`` spent and, where the domain declares the action sensitive to
     perception (``misalignment``), ``perception``: (log weight, result) at each Gauss-Hermite
     node of the perception error, the perceived pose's own result among them. `config` is
-    the run's (``perception_nodes``, ``perception_sigma``)."""
-    out = dict(pool.simulate(start, rows, action, trajectory, start_time))
+    the run's (``perception_nodes``, ``perception_sigma``); `arm` an arm's joints the worlds
+    move its links along (``sim_workers.robots.motion.ArmMotion``), None for the gripper."""
+    extra = {} if arm is None else {"arm": arm}
+    out = dict(pool.simulate(start, rows, action, trajectory, start_time, **extra))
     results = [out]
     shifted = perception_nodes(domain, config.perception_nodes, config.perception_sigma, start, action)
     if shifted:
         out["perception"] = []
         for lw, node_start in shifted:
-            r = out if node_start is None else pool.simulate(node_start, rows, action, trajectory, start_time)
+            r = out if node_start is None else pool.simulate(node_start, rows, action, trajectory, start_time,
+                                                             **extra)
             if node_start is not None:
                 results.append(r)
             out["perception"].append((lw, r))

@@ -15,6 +15,8 @@ import numpy as np
 from sim_workers.configuration import Configuration
 from sim_workers.engines import make_world
 from sim_workers.grounded_world import GroundedWorld
+from sim_workers.robots.motion import ArmMotion
+from sim_workers.robots.servo import follow
 from sim_workers.reality_gap import (RealityGap, SensorNoise, action_jitter, executed, jitter_planar,
                                      jittered_domain, noisy_readings, perceived_planar)
 
@@ -33,6 +35,7 @@ class Observation:
 
 class Reality(Protocol):
     def start_episode(self, rng: np.random.Generator) -> Observation: ...
+    # an arm's run also gets `arm=` (its joints: sim_workers.robots.motion.ArmMotion)
     def execute(self, trajectory: np.ndarray, action: str) -> Observation: ...
 
 
@@ -78,6 +81,13 @@ class SimulatedReality:
     (``noisy_readings``). A weighed channel is noised on its simulated reading, not re-read
     from the perceived configuration (the chute example's puck x: its own sigma, not
     perception's). ``SensorNoise.NONE``: the exact readings of before, bit for bit.
+
+    With an arm (``execute``'s `arm`: the step's joints), the reality is a simulated arm
+    of that robot: a position-controlled arm in MuJoCo (``sim_workers.robots.servo``)
+    tracks the joints from where it stands, with the lag and overshoot of a real joint
+    controller; its tool draws the rows the world's gripper follows, its links move through
+    the scene, and it reports the joints it measured (``Observation.joint_positions``). The
+    execution jitter scales the joints' clock as it does the rows' (before the tracking).
     """
 
     def __init__(self, domain_name: str, domain_options: dict, true_properties: dict,
@@ -98,6 +108,7 @@ class SimulatedReality:
         self._state: frozenset[str] = frozenset()
         self._exec_rng = None
         self._noise_rngs: tuple[np.random.Generator, np.random.Generator] | None = None
+        self._joints: np.ndarray | None = None      # a simulated arm's measured joints
 
     def start_episode(self, rng: np.random.Generator) -> Observation:
         domain = jittered_domain(rng, self.gap.friction, domain=self.domain_name, **self.options)
@@ -119,18 +130,30 @@ class SimulatedReality:
         # leaves the other's draws as they are. None spawned without noise: runs as before.
         self._noise_rngs = None if self.noise.exact else tuple(rng.spawn(1)[0].spawn(2))
         self._state = domain.symbolic_state(placed)     # the true state (reality's own)
+        self._joints = None                             # the arm starts on its first step's plan
         return self._observed(placed, self._state, domain.measurements(placed), "")
 
-    def execute(self, trajectory: np.ndarray, action: str) -> Observation:
+    def execute(self, trajectory: np.ndarray, action: str, arm: ArmMotion | None = None) -> Observation:
         if self._exec_rng is not None:
+            planned = trajectory
             trajectory = executed(trajectory, action, self._exec_rng, action_jitter(self._domain, action))
-        out = self.world.execute(trajectory, action)
+            if arm is not None and trajectory is not planned:       # the arm's joints on the same clock
+                arm = ArmMotion(arm.robot, arm.base, np.interp(arm.times, planned[:, 0], trajectory[:, 0]),
+                                arm.joints)
+        if arm is not None:
+            gripper = self._domain.scene_description(self._domain.properties(self.truth)).gripper
+            trajectory, arm = follow(trajectory, arm, self._joints, gripper.palm_mass + 2 * gripper.finger_mass)
+            self._joints = arm.joints[-1].copy()
+        out = self.world.execute(trajectory, action, arm=arm)
         config, state = out.configuration, out.state
         if self.failure is not None and self.failure.applies(self.context_fn(self._state, action)):
             config = self._put_back(config, action)
             state = self._domain.symbolic_state(config)
         self._state = state
-        return self._observed(config, state, out.measurements, action)
+        obs = self._observed(config, state, out.measurements, action)
+        if arm is not None:
+            obs = Observation(obs.configuration, obs.state, obs.measurements, self._joints.copy())
+        return obs
 
     def _observed(self, config: Configuration, state: frozenset[str], measurements: np.ndarray,
                   action: str) -> Observation:

@@ -44,6 +44,7 @@ from .transit import plan_pre_pose_transit, transit_checker
 from planner.motion import MotionPlanningError
 from .arm_motion import belief_scene_size, contact_time, plan_arm_step, robot_of, start_joints
 from sim_workers.robots import Unreachable
+from sim_workers.robots.motion import ArmMotion
 from ..transition.transition_model import TransitionModel, transition_table
 
 # A property whose posterior std is still over this share of its prior's (a uniform prior:
@@ -69,6 +70,7 @@ class PendingStep:
     # and the joints it ends at; None for the floating gripper.
     joint_trajectory: dict | None = None
     end_joints: np.ndarray | None = None
+    arm: ArmMotion | None = None      # the same joints as the worlds follow them (their links move)
 
     def to_dict(self) -> dict:
         out = {"action": self.action, "pose": self.pose.tolist(),
@@ -369,6 +371,7 @@ class Session:
         step.trajectory = plan.rows
         step.joint_trajectory = plan.path.goal(self.robot.joint_names)
         step.end_joints = plan.end
+        step.arm = ArmMotion(self.robot.name, getattr(self.domain, "robot_base", None), plan.path.t, plan.path.q)
         return True
 
     def clearance_sizes(self) -> np.ndarray:
@@ -425,7 +428,7 @@ class Session:
         sizes = np.ascontiguousarray(self.belief.particles)
         start = before.configuration.to_array()
         if self.config.likelihood == "replay":
-            res = self._simulate_rows(start, sizes, step.action, step.trajectory, step.transit_end)
+            res = self._simulate_rows(start, sizes, step.action, step.trajectory, step.transit_end, arm=step.arm)
         else:  # "paper": each particle runs its own trajectory to its own pose x_i
             trajs = np.array([self.domain.action_trajectory(before.configuration, step.action, xi)
                               for xi in step.particle_poses])
@@ -447,7 +450,7 @@ class Session:
         # weights after, the real outcome was counted twice, issue 37).
         prior_weights = self.action_belief(step.action)[0].weights
         real = RealStep(start, step.action, step.trajectory, step.transit_end, step.expected,
-                        observation.state, np.asarray(observation.measurements, dtype=np.float64))
+                        observation.state, np.asarray(observation.measurements, dtype=np.float64), step.arm)
         update = self.filter.update(real, loglik, res["measurements"], self.rng,
                                     self._simulate_rows, self._symbolic_loglik, nodes)
         self.particle_actions += update.simulated
@@ -460,12 +463,13 @@ class Session:
         self.stats.count_update(update.informative, update.injected)
         return update.report()
 
-    def _simulate_rows(self, start: np.ndarray, rows: np.ndarray, action: str, trajectory, start_time) -> dict:
+    def _simulate_rows(self, start: np.ndarray, rows: np.ndarray, action: str, trajectory, start_time,
+                       arm: ArmMotion | None = None) -> dict:
         """The particle worlds as the filter sees them (a callable; its time is physics):
         ``coordinator.loop.particle_worlds.simulate_rows`` on the session's shard pool."""
         t0 = time.perf_counter()
         out = simulate_rows(self.shard_pool, self.domain, self.config, start, rows, action, trajectory,
-                            start_time)
+                            start_time, arm=arm)
         self.stats.physics_s += time.perf_counter() - t0
         return out
 
@@ -562,7 +566,9 @@ class Session:
             step = self.next_step()
             if step is None:          # done before acting (e.g. nothing left to deliver)
                 return self._finish_episode()
-            obs = reality.execute(step.trajectory, step.action)
+            # an arm's joints go to the reality too (its links move in the simulated one)
+            obs = (reality.execute(step.trajectory, step.action) if step.arm is None
+                   else reality.execute(step.trajectory, step.action, arm=step.arm))
             report = self.observe(obs)
             if "episode" in report:
                 return report["episode"]

@@ -91,6 +91,13 @@ class RealStep:
     expected: frozenset[str]
     observed: frozenset[str]
     measurements: np.ndarray
+    arm: object = None            # an arm's joints the worlds move its links along (ArmMotion), or None
+
+    def replay(self, simulate, rows: np.ndarray) -> dict:
+        """`simulate` (the particle worlds) run for this step with `rows` of L."""
+        if self.arm is None:
+            return simulate(self.start, rows, self.action, self.trajectory, self.start_time)
+        return simulate(self.start, rows, self.action, self.trajectory, self.start_time, arm=self.arm)
 
 
 def propose(rows: np.ndarray, dims: np.ndarray, low: np.ndarray, high: np.ndarray,
@@ -132,7 +139,7 @@ def window_log_likelihood(steps: Sequence[RealStep], rows: np.ndarray,
     """Sum over `steps` of each row's log-likelihood, every step re-simulated for every row."""
     total = np.zeros(len(rows))
     for st in steps:
-        res = simulate(st.start, rows, st.action, st.trajectory, st.start_time)
+        res = st.replay(simulate, rows)
         total += step_log_likelihood(st, res)
     return total
 
@@ -171,7 +178,7 @@ def _screened(steps: Sequence[RealStep], proposed: np.ndarray, needed: np.ndarra
         if idx.size == 0:
             break
         st = steps[j]
-        terms = step_log_likelihood(st, simulate(st.start, proposed[idx], st.action, st.trajectory, st.start_time))
+        terms = step_log_likelihood(st, st.replay(simulate, proposed[idx]))
         per_step[j, idx] = terms
         partial[idx] += terms
         alive[idx] = ~(partial[idx] + left < needed[idx] - EARLY_REJECTION_SLACK)
@@ -233,8 +240,7 @@ def mh_move(rows: np.ndarray, dims: np.ndarray, low: np.ndarray, high: np.ndarra
         if bounds is not None:
             log_u = np.log(rng.random(n))
             if cur_steps is None:
-                cur_steps = np.array([step_log_likelihood(st, simulate(st.start, rows, st.action, st.trajectory,
-                                                                       st.start_time)) for st in steps])
+                cur_steps = np.array([step_log_likelihood(st, st.replay(simulate, rows)) for st in steps])
                 ll = _in_order(cur_steps)
             # accepted iff log_u < ll_p - ll + log_ratio, i.e. ll_p > log_u + ll - log_ratio
             ll_p, terms, full = _screened(steps, proposed, log_u + ll - log_ratio, bounds,
@@ -380,7 +386,7 @@ class LinearisedProposal:
 def _simulated(step: RealStep, rows: np.ndarray, simulate: Callable[..., dict],
                step_log_likelihood: Callable[[RealStep, dict], np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
     """Each row's log-likelihood of `step`, and its simulated measurements."""
-    res = simulate(step.start, rows, step.action, step.trajectory, step.start_time)
+    res = step.replay(simulate, rows)
     return step_log_likelihood(step, res), np.asarray(res["measurements"], dtype=np.float64)
 
 

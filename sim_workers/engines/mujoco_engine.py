@@ -65,6 +65,7 @@ SPARSE = True
 # and the table such stiff contacts made a pushed tower chatter (a push step cost twice as
 # much and its outcome matched pybullet's in 19 % of particles instead of 75 %).
 GRIPPER_SOLIMP = (0.999, 0.9999, 0.001, 0.5, 2.0)
+LINK_BIT = 2             # the collision filter bit of an arm's links (``_add_links``)
 PALM_JOINTS = ("palm_x", "palm_y", "palm_z", "palm_yaw")
 FINGER_JOINTS = ("finger_l", "finger_r")
 
@@ -89,6 +90,7 @@ class MujocoScene:
     grip_force: float
     time_step: float
     gripper_mass: float
+    links: tuple[int, ...] = ()       # mocap ids of an arm's link capsules (``add_links``), in order
 
 
 def _volume(s) -> float:
@@ -242,7 +244,41 @@ def _add_pairs(spec: mujoco.MjSpec, pairs: list[tuple[str, str, float, bool]]) -
             p.solimp = list(GRIPPER_SOLIMP)
 
 
-def _new_spec(desc: SceneDescription) -> tuple[mujoco.MjSpec, list]:
+def _add_links(spec: mujoco.MjSpec, desc: SceneDescription, geoms: dict[str, list[str]],
+               links: tuple) -> None:
+    """An arm's link capsules as mocap bodies (kinematic: placed every step, pushed by
+    nothing). They meet the movable bodies through MuJoCo's own collision filter rather
+    than explicit pairs (a pair is checked every step; the filter's broadphase skips the
+    far ones: measured, a third of a step's cost): a link geom's contype bit
+    ``LINK_BIT`` against that bit in the movable geoms' conaffinity, which nothing else
+    sets, so the bodies' own contacts stay the explicit pairs. Its friction is the fingers'
+    times the movable bodies' (``priority`` makes it the contact's, as the pairs' products
+    are elsewhere; the block domains' movable bodies share one coefficient, and where they
+    do not the largest is taken)."""
+    from ..robots.motion import capsule_frame
+
+    movable = [b for b in desc.bodies if b.mass]
+    mu = float(desc.gripper.friction) * max((float(b.friction) for b in movable), default=1.0)
+    for b in movable:
+        for name in geoms[b.name]:
+            spec.geom(name).conaffinity = LINK_BIT
+    for k, c in enumerate(links):
+        _, _, half = capsule_frame(c)
+        body = spec.worldbody.add_body()
+        body.name = f"arm_link_{k}"
+        body.mocap = True
+        body.pos = [0.0, 0.0, -10.0 - k]          # out of the way until the first step places it
+        g = body.add_geom()
+        g.name = f"arm_link_{k}#0"
+        g.contype, g.conaffinity = LINK_BIT, 0
+        g.priority = 1
+        g.condim = 3
+        g.friction = [mu, 0.0, 0.0]
+        g.type = mujoco.mjtGeom.mjGEOM_CAPSULE
+        g.size = [float(c.radius), max(half, 1e-6), 0.0]
+
+
+def _new_spec(desc: SceneDescription, links: tuple = ()) -> tuple[mujoco.MjSpec, list]:
     spec = mujoco.MjSpec()
     spec.modelname = "tmoc_scene"
     o = spec.option
@@ -260,19 +296,22 @@ def _new_spec(desc: SceneDescription) -> tuple[mujoco.MjSpec, list]:
     geoms = {b.name: _add_body(spec, b) for b in desc.bodies}
     palm, fingers = _add_gripper(spec, desc.gripper)
     pairs = _pair_list(desc, geoms, palm, fingers)
+    if links:
+        _add_links(spec, desc, geoms, links)
     _add_pairs(spec, pairs)
     return spec, list(spec.pairs)
 
 
-def build_model(desc: SceneDescription) -> MujocoScene:
-    """Compile `desc` (bodies in its order, then the gripper) into a model. (Rewriting the
-    values of a cached spec instead of building one saved 6 %: 1.18 against 1.26 ms a
-    container scene, the compile being most of it; not worth a second path.)"""
-    spec, _ = _new_spec(desc)
-    return _scene(spec.compile(), desc)
+def build_model(desc: SceneDescription, links: tuple = ()) -> MujocoScene:
+    """Compile `desc` (bodies in its order, then the gripper, then an arm's `links`:
+    ``sim_workers.robots.collision.Capsule``) into a model. (Rewriting the values of a
+    cached spec instead of building one saved 6 %: 1.18 against 1.26 ms a container scene,
+    the compile being most of it; not worth a second path.)"""
+    spec, _ = _new_spec(desc, links)
+    return _scene(spec.compile(), desc, len(links))
 
 
-def _scene(model: mujoco.MjModel, desc: SceneDescription) -> MujocoScene:
+def _scene(model: mujoco.MjModel, desc: SceneDescription, n_links: int = 0) -> MujocoScene:
     def body(name):
         return mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, name)
 
@@ -302,7 +341,8 @@ def _scene(model: mujoco.MjModel, desc: SceneDescription) -> MujocoScene:
         tuple(int(model.jnt_dofadr[joint(n)]) for n in FINGER_JOINTS),
         tuple(actuator(n) for n in PALM_JOINTS), tuple(actuator(n) for n in FINGER_JOINTS),
         float(g.palm_offset), float(g.finger_half[1]), float(g.grip_force), float(desc.time_step),
-        float(g.palm_mass + 2 * g.finger_mass))
+        float(g.palm_mass + 2 * g.finger_mass),
+        tuple(int(model.body_mocapid[body(f"arm_link_{k}")]) for k in range(n_links)))
 
 
 def _patchable(old: SceneDescription, new: SceneDescription) -> bool:

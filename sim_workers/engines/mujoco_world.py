@@ -33,6 +33,8 @@ from ..grounded_world import REST_ANGULAR, REST_CHECK_EVERY, REST_LINEAR, Ground
 from .mujoco_engine import MujocoScene, build_model, patch
 
 CTRL = int(mujoco.mjtState.mjSTATE_CTRL)
+MOCAP_POS = int(mujoco.mjtState.mjSTATE_MOCAP_POS)
+MOCAP_QUAT = int(mujoco.mjtState.mjSTATE_MOCAP_QUAT)
 FULLPHYSICS = int(mujoco.mjtState.mjSTATE_FULLPHYSICS)
 
 
@@ -83,6 +85,7 @@ class MujocoWorld(GroundedWorld):
         self._target = np.zeros(6)          # palm x, y, z, yaw, finger q, finger q
         self._sent: tuple | None = None
         self._tare = 0.0
+        self._links: tuple = ()             # the arm's capsules the model holds (mocap bodies)
         self._rollout = mj_rollout.Rollout(nthread=0)   # on the calling thread
 
     def close(self) -> None:
@@ -94,8 +97,9 @@ class MujocoWorld(GroundedWorld):
 
     def _rebuild(self, props: dict) -> None:
         desc = self.domain.scene_description(props)
-        if desc != self._desc and not (self.scene is not None and patch(self.scene, self._desc, desc, self.data)):
-            self.scene = build_model(desc)
+        if desc != self._desc and not (self.scene is not None and self._desc is not None
+                                       and patch(self.scene, self._desc, desc, self.data)):
+            self.scene = build_model(desc, self._links)
             self.model, self.data = self.scene.model, mujoco.MjData(self.scene.model)
         self._desc = desc
         mujoco.mj_resetData(self.model, self.data)
@@ -139,6 +143,22 @@ class MujocoWorld(GroundedWorld):
             guarded = limit < self.domain.base_max_force
             self._tare = 0.0 if guarded else s.gripper_mass * -float(m.opt.gravity[2])
 
+    def _with_links(self, links: tuple) -> None:
+        """See ``GroundedWorld._with_links``: mocap capsules paired with the movable bodies;
+        a model without them is compiled with them (once per world: later hypotheses patch
+        it), the scene put back as it stood."""
+        links = tuple(links)
+        if links == self._links:
+            return
+        config = self._placed if self._fresh else self.observe()
+        self._links, self._desc = links, None
+        self.reset(config, self.props, place=False)
+
+    def _place_links(self, positions: np.ndarray, quaternions: np.ndarray) -> None:
+        ids = list(self.scene.links)
+        self.data.mocap_pos[ids] = positions
+        self.data.mocap_quat[ids] = np.asarray(quaternions)[:, [3, 0, 1, 2]]
+
     def _step(self) -> None:
         mujoco.mj_step(self.model, self.data)
 
@@ -160,7 +180,8 @@ class MujocoWorld(GroundedWorld):
                 rows = rows.copy()
                 rows[:, :3] += offset
             self._set_gripper(rows[0])
-            logged = self._advance(rows, logging)
+            links = None if self._links_track is None else (self._links_track[0][a:b], self._links_track[1][a:b])
+            logged = self._advance(rows, logging, links)
             if logging:
                 force.append(logged[0])
                 opening.append(logged[1])
@@ -182,22 +203,36 @@ class MujocoWorld(GroundedWorld):
         ctrl[:, s.finger_actuators[1]] = q
         return ctrl
 
-    def _advance(self, rows: np.ndarray, logging: bool):
+    def _advance(self, rows: np.ndarray, logging: bool, links: tuple | None = None):
         """Step once per row of drive targets (efforts constant: ``_set_gripper`` has set
-        them and the first row); with `logging`, the wrist forces (n, 3) and openings (n,)."""
+        them and the first row) and, with `links` (centres (n, L, 3), quaternions (n, L, 4)),
+        of an arm's link poses; with `logging`, the wrist forces (n, 3) and openings (n,)."""
         m, d, s = self.model, self.data, self.scene
         n = len(rows)
         still = n == 1 or not np.any(rows[1:, :5] != rows[0, :5])
+        spec = CTRL
+        if links is not None:
+            self._place_links(links[0][0], links[1][0])
+            still = still and not (np.any(links[0][1:] != links[0][0]) or np.any(links[1][1:] != links[1][0]))
         if still and not logging:
             mujoco.mj_step(m, d, n)
             return None
         ctrl = self._controls(rows)
+        if links is not None:
+            # the links' poses ride along as controls (rollout sets them before each step)
+            spec = CTRL | MOCAP_POS | MOCAP_QUAT
+            mocap = np.empty((n, m.nmocap, 7))
+            mocap[:, :, :3], mocap[:, :, 3:] = d.mocap_pos, d.mocap_quat
+            ids = list(s.links)
+            mocap[:, ids, :3] = links[0]
+            mocap[:, ids, 3:] = links[1][:, :, [3, 0, 1, 2]]
+            ctrl = np.concatenate([ctrl, mocap[:, :, :3].reshape(n, -1), mocap[:, :, 3:].reshape(n, -1)], axis=1)
         state0 = np.empty(mujoco.mj_stateSize(m, FULLPHYSICS))
         mujoco.mj_getState(m, d, state0, FULLPHYSICS)
         states = np.empty((1, n, len(state0))) if logging else None
         sensed = np.empty((1, n, m.nsensordata)) if logging else None
         t0 = d.time
-        self._rollout.rollout([m], [d], state0[None], ctrl[None], control_spec=CTRL, skip_checks=True,
+        self._rollout.rollout([m], [d], state0[None], ctrl[None], control_spec=spec, skip_checks=True,
                               nstep=n, initial_warmstart=d.qacc_warmstart.copy()[None],
                               state=states, sensordata=sensed)
         done = n
@@ -206,12 +241,14 @@ class MujocoWorld(GroundedWorld):
             # goes on, so the rest is stepped here as it would have been.
             done = int(round((d.time - t0) / m.opt.timestep))
             for k in range(done, n):
-                d.ctrl[:] = ctrl[k]
+                mujoco.mj_setState(m, d, ctrl[k], spec)
                 mujoco.mj_step(m, d)
                 if logging:
                     mujoco.mj_getState(m, d, states[0, k], FULLPHYSICS)
                     sensed[0, k] = d.sensordata
         self._target[:] = ctrl[-1, list(s.palm_actuators) + list(s.finger_actuators)]
+        if links is not None:
+            self._place_links(links[0][-1], links[1][-1])
         if not logging:
             return None
         force = sensed[0, :, :3].copy()

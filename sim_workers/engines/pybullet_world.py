@@ -15,6 +15,7 @@ from .. import reach
 from ..configuration import Configuration, quat_from_yaw, yaw_of
 from ..domains import Domain
 from ..grounded_world import REST_ANGULAR, REST_LINEAR, GroundedWorld
+from ..robots.motion import capsule_frame
 from .pybullet_engine import build_scene
 
 
@@ -28,6 +29,8 @@ class PybulletWorld(GroundedWorld):
         self.handles = None
         self._sent_pose = self._sent_q = None
         self._weight: float | None = None
+        self._links: tuple = ()              # the arm's capsules the scene holds, and their bodies
+        self._link_bodies: list[int] = []
         super().__init__(domain, leave_out=leave_out)
 
     def _connect(self) -> None:
@@ -48,6 +51,7 @@ class PybulletWorld(GroundedWorld):
         self.handles = (own(self.client, props) if own is not None else
                         build_scene(self.client, self.domain.scene_description(self.domain.properties(props))))
         self._weight = None
+        self._links, self._link_bodies = (), []
 
     def _apply(self, config: Configuration) -> None:
         h, c = self.handles, self.client
@@ -107,6 +111,33 @@ class PybulletWorld(GroundedWorld):
             pb.applyExternalForce(h.gripper, -1, [0.0, 0.0, self._gripper_weight()], [0.0, 0.0, 0.0],
                                   pb.LINK_FRAME, physicsClientId=c)
 
+    def _with_links(self, links: tuple) -> None:
+        """See ``GroundedWorld._with_links``: static (mass 0) capsule bodies moved by pose
+        resets, at the fingers' friction; Bullet makes no contact between two static bodies,
+        so the table and the fixtures are left alone, and the gripper is filtered out."""
+        if links == self._links:
+            return
+        h, c = self.handles, self.client
+        for b in self._link_bodies:
+            pb.removeBody(b, physicsClientId=c)
+        self._links, self._link_bodies = tuple(links), []
+        friction = pb.getDynamicsInfo(h.gripper, h.fingers[0], physicsClientId=c)[1]
+        for k, cap in enumerate(self._links):
+            _, _, half = capsule_frame(cap)
+            shape = pb.createCollisionShape(pb.GEOM_CAPSULE, radius=float(cap.radius), height=2.0 * half,
+                                            physicsClientId=c)
+            body = pb.createMultiBody(0.0, shape, -1, [0.0, 0.0, -10.0 - k], useMaximalCoordinates=True,
+                                      physicsClientId=c)
+            pb.changeDynamics(body, -1, lateralFriction=friction, physicsClientId=c)
+            for link in (-1, *h.fingers):
+                pb.setCollisionFilterPair(body, h.gripper, -1, link, 0, physicsClientId=c)
+            self._link_bodies.append(body)
+
+    def _place_links(self, positions: np.ndarray, quaternions: np.ndarray) -> None:
+        c = self.client
+        for body, p, q in zip(self._link_bodies, positions.tolist(), quaternions.tolist()):
+            pb.resetBasePositionAndOrientation(body, p, q, physicsClientId=c)
+
     def _gripper_weight(self) -> float:
         """The gripper's weight (N): palm and fingers, read from the built bodies."""
         if self._weight is None:
@@ -150,15 +181,15 @@ class PybulletWorld(GroundedWorld):
     def _commanded_tool(self) -> np.ndarray:
         return np.array(self._sent_pose[0][:3])
 
-    def _leave_out(self, targets: np.ndarray) -> reach.Guard | None:
-        """Remove the objects the action cannot reach (``sim_workers.reach``); None when
-        every object is within reach."""
+    def _leave_out(self, targets: np.ndarray, link_boxes: np.ndarray | None = None) -> reach.Guard | None:
+        """Remove the objects the action cannot reach, nor an arm's links at any step (their
+        boxes `link_boxes`) (``sim_workers.reach``); None when every object is within reach."""
         h, c = self.handles, self.client
         boxes = np.array([reach.body_box(b, c) for b in h.objects])
         tool = np.array(self._sent_pose[0][:3])
         opening = float(self._sent_q[0] - h.finger_inner) * 2.0
         keep = reach.kept_objects(boxes, reach.body_box(h.gripper, c), tool, targets[:, :3],
-                                  widening=float(targets[:, 4].max()) - opening)
+                                  widening=float(targets[:, 4].max()) - opening, link_boxes=link_boxes)
         if keep.all():
             return None
         kept = [int(i) for i in np.flatnonzero(keep)]

@@ -119,6 +119,10 @@ class Arm(Robot):
     # joint acceleration a time parameterisation uses where the maker publishes none.
     links: tuple = ()
     acceleration: float = 1.4
+    # Per joint frame 1-6, the link's mass (kg) and the joint's torque limit (N m), where the
+    # maker publishes them: what a simulated arm's joint controller moves (``robots.servo``).
+    link_masses: tuple = ()
+    joint_torques: tuple = ()
 
     def placed(self, base: tuple[float, float, float, float] | None) -> "Arm":
         """This arm with its base at (x, y, z, yaw) in the world (a domain's ``robot_base``);
@@ -158,7 +162,8 @@ class Arm(Robot):
                  flange_to_tool=np.asarray(self.flange_to_tool).tolist(), home=self.home.tolist(),
                  links=[{"name": c.name, "frame": c.frame, "a": list(c.a), "b": list(c.b), "radius": c.radius}
                         for c in self.links],
-                 trajectory_acceleration=self.acceleration)
+                 trajectory_acceleration=self.acceleration, link_masses=list(self.link_masses),
+                 joint_torques=list(self.joint_torques))
         return d
 
 

@@ -21,7 +21,7 @@ import numpy as np
 
 from .kinematics import frames
 
-__all__ = ["Capsule", "first_contact", "link_spheres", "links_checker", "sphere_chain"]
+__all__ = ["Capsule", "first_contact", "link_spheres", "links_checker", "moving_links", "sphere_chain"]
 
 SPACING = 0.5       # sphere spacing along a capsule, as a fraction of its radius (see above)
 
@@ -91,13 +91,21 @@ def _boxes(obstacles: Sequence[tuple]) -> tuple[np.ndarray, np.ndarray, np.ndarr
     return c, h, r
 
 
+def moving_links(arm) -> tuple:
+    """The links a joint moves (not frame 0's, the base): only these can be cleared by a
+    plan. A resting object against the fixed base (a block that fell beside it) is no
+    reason to refuse every motion."""
+    return tuple(c for c in arm.links if c.frame != 0)
+
+
 def links_checker(arm, obstacles: Sequence[tuple], *, floor_z: float | None = 0.0,
                   margin: float = 0.0) -> Callable[[np.ndarray], bool]:
-    """is_valid(q): every link sphere of `arm` at joints q clear of every box of `obstacles`
-    ((centre, half extents[, rotation]) in the world, as a domain's ``obstacles``) by
-    `margin`, and above the table's plane `floor_z` (None: no table) for links that are
-    checked against it; joints outside the arm's limits are invalid."""
-    chains = _Chains(arm.links)
+    """is_valid(q): every moving link sphere of `arm` at joints q (``moving_links``) clear
+    of every box of `obstacles` ((centre, half extents[, rotation]) in the world, as a
+    domain's ``obstacles``) by `margin`, and above the table's plane `floor_z` (None: no
+    table) for links that are checked against it; joints outside the arm's limits are
+    invalid."""
+    chains = _Chains(moving_links(arm))
     c, h, rot = _boxes(obstacles)
     low, high = arm.low, arm.high
 
@@ -132,7 +140,7 @@ def first_contact(arm, obstacles: Sequence[tuple], q: np.ndarray, floor_z: float
     """Which link of `arm` at joints `q` meets which box of `obstacles` (or the table), in
     words; None when every link is clear."""
     c, h, rot = _boxes(obstacles)
-    hit = _contact(arm, _Chains(arm.links), np.asarray(q, dtype=np.float64), c, h, rot, floor_z, 0.0)
+    hit = _contact(arm, _Chains(moving_links(arm)), np.asarray(q, dtype=np.float64), c, h, rot, floor_z, 0.0)
     if hit is None:
         return None
     return f"the {hit[0]} meets the table" if hit[1] < 0 else f"the {hit[0]} meets obstacle {hit[1]}"

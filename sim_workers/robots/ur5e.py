@@ -60,6 +60,10 @@ class UR5e(Arm):
     # Universal Robots publishes no joint acceleration limit; its controller's own default
     # for a joint move (URScript movej, a = 1.4 rad/s^2) is the one the service times with.
     acceleration = 1.4
+    # Universal Robots' published link masses (its DH parameter table, kg) and joint torque
+    # limits (size-3 joints at base, shoulder and elbow: 150 N m; size-1 wrists: 28 N m).
+    link_masses = (3.761, 8.058, 2.846, 1.37, 1.3, 0.365)
+    joint_torques = (150.0, 150.0, 150.0, 28.0, 28.0, 28.0)
 
     @property
     def home(self) -> np.ndarray:

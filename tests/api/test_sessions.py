@@ -233,8 +233,10 @@ def test_a_robot_session_asks_its_worlds_before_its_first_plan(client):
 
 def test_an_arm_s_session_steps_carry_a_joint_trajectory_a_client_can_check(client, robot):
     """Issue 41: with robot ur5e each step carries a FollowJointTrajectory-shaped goal whose
-    positions put the tool (by GET /v1/robots' kinematics) on the step's rows."""
+    positions put the tool (by GET /v1/robots' kinematics) on the step's rows; the simulated
+    UR5e reality runs it over HTTP as a real arm would and reports its joints."""
     from sim_workers.robots.kinematics import DH, forward
+    from sim_workers.robots.motion import ArmMotion
 
     start = robot.start_episode(np.random.default_rng(0))
     r = client.post("/v1/sessions", json={"agent": "tmoc", "particles": 4, "episodes": 1, "max_steps": 2,
@@ -260,9 +262,14 @@ def test_an_arm_s_session_steps_carry_a_joint_trajectory_a_client_can_check(clie
             assert np.abs(pose[:3, 3] - row[1:4]).max() < 1e-6
             assert abs(point["time_from_start"] - (row[0] - step["trajectory"][0][0])) < 1e-9
             assert max(abs(v) for v in point["velocities"]) <= 1.02 * ur5e["joints"][0]["max_velocity"]
-        outcome = robot.execute(np.array(step["trajectory"]), step["action"])
-        # the arm reports its joints: the next step starts from them; a wrong count is named
-        measured = list(goal["points"][-1]["positions"])
+        # the simulated UR5e runs the goal as a real arm would (from the JSON alone: the
+        # robot's name, the domain's base, the goal; the rows for the fingers) and reports
+        # the joints it measured, which put the tool on the step's last row
+        rows = np.array(step["trajectory"])
+        outcome = robot.execute(rows, step["action"], arm=ArmMotion.from_goal("ur5e", (x, y, z, yaw), goal, rows[0, 0]))
+        measured = outcome.joint_positions.tolist()
+        assert np.abs((base @ forward(dh, outcome.joint_positions) @ tool)[:3, 3] - rows[-1, 1:4]).max() < 1e-4
+        assert measured != goal["points"][-1]["positions"]          # tracked, not copied
         bad = client.post(f"/v1/sessions/{sid}/observations",
                           json=_observation(outcome, step, joint_positions=measured[:5]))
         assert bad.status_code == 409 and "joint_positions" in bad.text and "6 joints" in bad.text
