@@ -12,7 +12,7 @@ from pydantic import ValidationError
 from . import UsageError
 
 _FLAGS = {"particles": "--particles", "episodes": "--episodes", "seed": "--seed",
-          "max_steps": "--max-steps", "true_size": "--true-size"}
+          "max_steps": "--max-steps", "true_size": "--true-size", "robot": "--robot"}
 
 
 def register(sub) -> None:
@@ -63,6 +63,9 @@ def register(sub) -> None:
     p.add_argument("--reality-engine", default=None, metavar="pybullet|mujoco",
                    help="the simulated reality's engine (and T*'s probes); another than --engine's is "
                         "a simulator that is not reality")
+    p.add_argument("--robot", default=None, metavar="NAME",
+                   help="the robot every run drives (gripper | ur5e | a plugin's; default gripper): an arm "
+                        "plans joint trajectories, and the simulated reality is that arm (`tmoc robots`)")
     p.add_argument("--set", action="append", default=None, metavar="KEY=VALUE", dest="run_fields",
                    help="a RunConfig field for every run (repeatable), e.g. sensor_noise=2 or "
                         "recovery=prior (tmoc run --print-config lists them)")
@@ -93,6 +96,15 @@ def _engine(value: str | None, flag: str) -> str | None:
         return check_engine(value, flag)
     except EngineError as exc:
         raise UsageError(str(exc)) from None
+
+
+def _with_robot(fields: dict, name: str | None) -> dict:
+    """`fields` with ``--robot``'s robot (also spelt ``--set robot=NAME``; both: one name)."""
+    if name is None:
+        return fields
+    if fields.get("robot", name) != name:
+        raise UsageError(f"--robot: {name!r} and --set robot={fields['robot']!r} disagree")
+    return {**fields, "robot": name}
 
 
 def _run_fields(items: list[str] | None) -> dict:
@@ -163,7 +175,8 @@ def spec_from_args(args):
                            if across else ()),
                    engine=_engine(args.engine, "--engine"),
                    reality_engine=_engine(args.reality_engine, "--reality-engine"),
-                   run_fields=_run_fields(getattr(args, "run_fields", None)))
+                   run_fields=_with_robot(_run_fields(getattr(args, "run_fields", None)),
+                                          getattr(args, "robot", None)))
     try:       # every run's config must validate before anything starts
         for k in range(len(spec.settings)):
             ex.run_config(spec, k, 0)
@@ -173,6 +186,10 @@ def spec_from_args(args):
         if args.name == "weights" and ("options." in err["msg"] or "truth." in err["msg"]):
             raise UsageError(f"--domain: the weights experiment needs density in L, which "
                              f"{args.domain!r} does not have ({err['msg'].removeprefix('Value error, ')})") from None
+        msg = err["msg"].removeprefix("Value error, ")
+        named, _, rest = msg.partition(": ")
+        if not field and named in _FLAGS:          # a check across fields names its field first
+            raise UsageError(f"{_FLAGS[named]}: {rest}") from None
         raise UsageError(f"{_FLAGS.get(field, '--' + field.replace('_', '-'))}: {err['msg']} "
                          f"(got {err.get('input')!r})") from None
     return spec
