@@ -304,6 +304,10 @@ class RobotView(BaseModel):
         "an arm's collision shapes: capsules in its link frames, checked against the believed scene"))
     trajectory_acceleration: float | None = Field(None, description=(
         "the joint acceleration (rad/s^2) the service times an arm's trajectories with"))
+    link_masses: list[float] | None = Field(None, description=(
+        "an arm's link masses (kg) per joint frame 1-6, as its maker publishes them (the simulated arm's)"))
+    joint_torques: list[float] | None = Field(None, description=(
+        "an arm's joint torque limits (N m), as its maker publishes them (the simulated arm's)"))
 
 
 class RobotList(BaseModel):

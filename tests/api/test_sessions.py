@@ -245,6 +245,7 @@ def test_an_arm_s_session_steps_carry_a_joint_trajectory_a_client_can_check(clie
     sid, step = r.json()["id"], r.json()["next"]
     ur5e = client.get("/v1/robots/ur5e").json()
     assert ur5e["links"] and ur5e["trajectory_acceleration"] == 1.4
+    assert ur5e["link_masses"] == [3.761, 8.058, 2.846, 1.37, 1.3, 0.365] and ur5e["joint_torques"][0] == 150.0
     dh = DH(**ur5e["dh"])
     # the arm stands where the domain declares (GET /v1/domains: robot_base x, y, z, yaw)
     domains = client.get("/v1/domains").json()

@@ -43,6 +43,8 @@ def _csv(path):
     (["milestones", "--milestones", "x"], "--milestones"),
     (["compare", "--probe-trials", "0"], "--probe-trials"),
     (["figure9"], "NAME"),
+    (["robot", "--robot", "ur6"], "--robot"),
+    (["robot", "--robot", "ur5e", "--set", "robot=gripper"], "--robot"),
 ])
 def test_bad_arguments_exit_2_naming_the_flag(args, flag, capsys, tmp_path):
     assert main(["experiment", *args, "--out", str(tmp_path)]) == 2
