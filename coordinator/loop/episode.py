@@ -33,6 +33,7 @@ class EpisodeStats:
     rejuvenations: int = 0            # unexplained observations that redrew particles from the prior
     redrawn_particles: int = 0        # rows redrawn over them
     dead_end: str | None = None       # why the planner found no way to the goal (episode ended there)
+    arm_refusals: list = field(default_factory=list)   # actions the arm could not do, with why
     counterfactual_trials: int = 0    # world trials of the counterfactual snapshot (issue 40)
     counterfactual_s: float = 0.0     # and their wall time
 
@@ -86,6 +87,9 @@ class EpisodeStats:
             "redrawn_particles": self.redrawn_particles,
             # the observed state from which no plan reaches the goal (None: none met)
             "dead_end": self.dead_end,
+            # actions the arm could not do (each a failed attempt for T; issue 41), with why
+            "arm_refusals": len(self.arm_refusals),
+            "arm_refusal_notes": list(self.arm_refusals),
             # the counterfactual snapshot's world trials (rows x contexts) and wall time
             "counterfactual_trials": self.counterfactual_trials,
             "counterfactual_s": self.counterfactual_s,

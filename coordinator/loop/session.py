@@ -138,6 +138,7 @@ class Session:
         # are the last step's end within an episode, the home branch at an episode's start.
         self.robot = robot_of(config.robot, self.domain)
         self.joints: np.ndarray | None = None
+        self._refusals: dict[frozenset[str], set[str]] = {}
 
     @property
     def belief(self) -> Belief | None:
@@ -246,6 +247,7 @@ class Session:
         self.step_records = []
         self.filter.start_episode()
         self.joints = None
+        self._refusals: dict[frozenset[str], set[str]] = {}    # state -> actions the arm could not do
         self._t0 = time.perf_counter()
 
     @property
@@ -326,6 +328,11 @@ class Session:
             if self.stats.dead_end is not None:
                 return None
         action = self.plan[0]
+        if action in self._refusals.get(self.state, ()):      # the arm could not, from here
+            self.plan = []
+            self.stats.dead_end = next(w for w in reversed(self.stats.arm_refusals)
+                                       if w.startswith(f"the arm cannot {action}:"))
+            return None
         config = self.observation.configuration
         x, xs = self._real_pose(config, action)
         pre = self.domain.pre_pose(config, action, x)
@@ -337,7 +344,7 @@ class Session:
         expected = self.task.apply(self.state, action)
         step = PendingStep(action, x, traj, expected, t_pre, xs, unchecked_transit=transit is None)
         if self.robot is not None and not self._arm_step(config, step):
-            return None
+            return self.next_step()            # replanned around it, or the episode ended
         self.pending = step
         return self.pending
 
@@ -362,8 +369,7 @@ class Session:
                                  contact_from=contact_time(step.trajectory, step.pose, step.transit_end),
                                  held=self._held_size(sizes))
         except (MotionPlanningError, Unreachable) as exc:      # ArmPlanningError included
-            self.plan = []
-            self.stats.dead_end = f"the arm cannot {step.action}: {exc}"[:200]
+            self._refused(step, f"the arm cannot {step.action}: {exc}"[:200])
             return False
         finally:
             self.stats.planning_s += time.perf_counter() - t0
@@ -373,6 +379,24 @@ class Session:
         step.end_joints = plan.end
         step.arm = ArmMotion(self.robot.name, getattr(self.domain, "robot_base", None), plan.path.t, plan.path.q)
         return True
+
+    def _refused(self, step: PendingStep, why: str) -> None:
+        """The arm cannot do `step` from here: to T a failed attempt of the action in this
+        context (nothing moved: the state is as before), accounted as a failed action, and
+        the plan made again. An arm that cannot push a tower of 8 from its base teaches T
+        that such a push fails for this robot, so the next plans build lower towers, where a
+        dead end taught nothing and every episode planned it again. The same action planned
+        again from the same state (the planner has nothing better) ends the episode as a
+        dead end naming why."""
+        state, action = self.state, step.action
+        self._refusals.setdefault(state, set()).add(action)
+        self.stats.arm_refusals.append(why)
+        self.experience.add_real(state, action, state, step.expected)
+        self.transition = self._transition_model()
+        self._account(state, step, state, False)
+        self.plan = []
+        if not self.episode_done():
+            self._replan_or_end()
 
     def clearance_sizes(self) -> np.ndarray:
         """Per object, the size an arm's links clear: the belief's QUANTILE (so a tower wider

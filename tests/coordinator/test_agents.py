@@ -21,7 +21,7 @@ RECORD_KEYS = {"episode", "utility", "actions", "failures", "loads", "delivered"
                "posterior", "ess", "wall_s", "physics_s", "planning_s", "particle_actions",
                "particles_per_action", "transit_fallbacks", "transit_fallback_notes",
                "informative_updates", "uninformative_updates", "rejuvenations", "redrawn_particles",
-               "dead_end", "counterfactual_trials", "counterfactual_s"}
+               "dead_end", "counterfactual_trials", "counterfactual_s", "arm_refusals", "arm_refusal_notes"}
 PARTICLES = 4
 
 

@@ -209,3 +209,20 @@ def test_the_arm_moves_in_the_particle_worlds_and_the_simulated_arm_reports_the_
         assert not np.array_equal(q, motion.joints[-1])            # but it tracked, not copied
     for (_, obs), goal in zip(reports[:-1], goals[1:]):
         assert np.allclose(goal["points"][0]["positions"], obs.joint_positions, atol=1e-9)
+
+
+def test_an_action_the_arm_cannot_do_is_a_failure_t_learns_not_a_silent_end():
+    """Issue 41: a tower of 8 (34 mm blocks) the UR5e cannot push from its base: T gets a
+    failed push of 8 (so the next plans build lower towers), the episode pays a failed
+    action, and with nothing else to plan from there the episode ends naming why."""
+    cfg = RunConfig(domain="stack_and_push", particles=4, true_size=0.034, episodes=1, seed=0, robot="ur5e")
+    s = Session(cfg)
+    reality = SimulatedReality("stack_and_push", {"n_blocks": cfg.n_blocks, **cfg.options}, s.props_of(s.truth_row()))
+    try:
+        ep = s.run_episode(reality, np.random.default_rng(0))
+    finally:
+        reality.close()
+    assert ep["arm_refusals"] == 1 and ep["arm_refusal_notes"][0].startswith("the arm cannot push(r,tower")
+    assert ep["dead_end"] == ep["arm_refusal_notes"][0] and ep["failures"].get("push") == 1
+    assert s.experience.counts()["real"][("push", 8)] == (0.0, 1.0)
+    assert s.transition.to_planner()["push"][7] < 1.0
