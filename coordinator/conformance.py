@@ -436,12 +436,44 @@ CHECKS: dict[str, Callable[[Domain], str]] = {
 }
 
 
-def check_domain(name: str, *, ray_actors: bool = True, **options) -> list[CheckResult]:
-    """Run every check on domain `name`; one result per check (never raises for a
-    failed check, so a report lists them all)."""
+def check_robot(d: Domain, robot_name: str) -> str:
+    """With an arm (`robot_name`), the domain declares where it stands (``robot_base``) and
+    the arm plans the first action's whole tool path from there (inverse kinematics, every
+    link clear of the scene, toppra's timing: ``coordinator.loop.arm_motion``) at both ends
+    of L's first property's prior; a floating gripper needs nothing."""
+    from sim_workers.robots import Arm, robot
+
+    from .loop.arm_motion import plan_arm_step, robot_of, start_joints
+
+    if not isinstance(robot(robot_name), Arm):
+        return f"{robot_name}: the tool point is commanded directly"
+    arm = robot_of(robot_name, d.physics)
+    n = 0
+    for value in _prior(d):
+        props = _sized(d, value)
+        config = d.physics.initial_configuration(props)
+        sizes = np.asarray(d.physics.object_sizes(props), dtype=np.float64)
+        obstacles = d.physics.obstacles(config, sizes)
+        for _state, action in _first_actions(d, 1):
+            pose = d.physics.action_pose(props, config, action)
+            rows = d.physics.action_trajectory(config, action, pose)
+            plan = plan_arm_step(arm, rows, obstacles, start=start_joints(arm, config.robot, obstacles), seed=0,
+                                 contact_from=0.0)
+            assert np.all(plan.path.q >= arm.low) and np.all(plan.path.q <= arm.high)
+            n += len(plan.rows)
+    return f"{robot_name} from {tuple(round(float(v), 4) for v in d.physics.robot_base)}: {n} tool rows planned"
+
+
+def check_domain(name: str, *, ray_actors: bool = True, robot: str | None = None,
+                 **options) -> list[CheckResult]:
+    """Run every check on domain `name`, and with `robot` the arm's (``check_robot``);
+    one result per check (never raises for a failed check, so a report lists them all)."""
     results = []
     d = None
-    for check, fn in CHECKS.items():
+    checks = dict(CHECKS)
+    if robot is not None:
+        checks["robot"] = lambda dom: check_robot(dom, robot)
+    for check, fn in checks.items():
         t0 = time.perf_counter()
         try:
             if fn is check_structure:

@@ -20,6 +20,9 @@ def register(sub) -> None:
                    help="skip the two-Ray-actor part of the determinism check")
     p.add_argument("--engine", default=None, metavar="pybullet|mujoco",
                    help="the physics engine the worlds are built in (default: pybullet where installed)")
+    p.add_argument("--robot", default=None, metavar="NAME",
+                   help="also check that this robot (ur5e, a plugin's arm) stands where the domain declares "
+                        "(robot_base) and plans the first action's tool path from there at the prior's ends")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     p.set_defaults(func=main)
 
@@ -37,7 +40,14 @@ def main(args) -> int:
         engine = check_engine(args.engine, "--engine")
     except EngineError as exc:
         raise UsageError(str(exc)) from None
-    results = check_domain(args.name, ray_actors=not args.no_ray, engine=engine)
+    if args.robot is not None:
+        from sim_workers.robots import RobotError, robot
+
+        try:
+            robot(args.robot)
+        except RobotError as exc:
+            raise UsageError(f"--robot: {exc}") from None
+    results = check_domain(args.name, ray_actors=not args.no_ray, engine=engine, robot=args.robot)
     failed = [r for r in results if not r.ok]
     if args.json:
         print(json.dumps({"domain": args.name, "engine": engine, "ok": not failed,

@@ -484,3 +484,25 @@ def test_a_probe_declared_by_name_gets_the_truth_and_belief_in_full(monkeypatch)
         assert r.successes == 0
     assert _ProbedByName.seen == [("pickup", 2, {"size": 0.05}, {"size": 0.05})] * 2 + [
         ("pickup", 1, {"size": 0.05}, {"size": 0.04})]
+
+
+class _Baseless(ContainerDomain):
+    """The container with no place for an arm to stand."""
+
+    name = "baseless"
+    robot_base = None
+
+
+def test_check_domain_with_a_robot_plans_the_arm_from_the_declared_base(capsys, monkeypatch):
+    """`tmoc check-domain NAME --robot ur5e` (issue 41): the arm plans the first action from
+    the domain's robot_base at both ends of the prior; a domain without a base fails that
+    check by name; an unknown robot is a usage error."""
+    assert main(["check-domain", "container", "--no-ray", "--robot", "ur5e"]) == 0
+    assert "ok   robot" in capsys.readouterr().out
+    with _registered(monkeypatch, "baseless", _Baseless, "no base"):
+        assert main(["check-domain", "baseless", "--no-ray", "--robot", "ur5e"]) == 1
+        out = capsys.readouterr().out
+        assert "FAIL robot" in out and "robot_base" in out
+        assert main(["check-domain", "baseless", "--no-ray"]) == 0        # without an arm: nothing to check
+    assert main(["check-domain", "container", "--robot", "ur6"]) == 2
+    assert "--robot" in capsys.readouterr().err
