@@ -3,7 +3,8 @@ every step's joint trajectory planned as the session plans it (inverse kinematic
 tool path to 1 mm, every link checked against the believed scene, a joint-space transit by
 RRT* where the path cannot be followed, toppra's timing); the planning time per action
 (median, p95, max, ms on one core), the share of actions that needed a joint-space transit,
-and the episodes ended because the arm could not do an action, with why; measured in this run.
+the actions the arm could not do (a failed attempt to T, then a new plan) and the episodes
+that ended because the arm could not do an action, with why; measured in this run.
 
     python benchmarks/bench_arm_motion.py [--robot ur5e] [--domains container,stack_and_push]
                                           [--sizes 0.033,0.045,0.057] [--seeds 2] [--objects N]
@@ -48,7 +49,7 @@ def main(argv=None) -> int:
     for domain in args.domains.split(","):
         times.clear()
         plans.clear()
-        ended, episodes, utilities = Counter(), 0, []
+        ended, refused, episodes, utilities = Counter(), Counter(), 0, []
         for size in (float(s) for s in args.sizes.split(",")):
             for seed in range(args.seeds):
                 extra = {} if args.objects is None else {"n_blocks": args.objects}
@@ -62,6 +63,9 @@ def main(argv=None) -> int:
                     reality.close()
                 episodes += 1
                 utilities.append(ep["utility"])
+                for why in s.stats.arm_refusals:
+                    action, _, reason = why[len("the arm cannot "):].partition(": ")
+                    refused[f"{action.split('(')[0]}: {reason.rpartition('): ')[2][:70]}"] += 1
                 if s.stats.dead_end and s.stats.dead_end.startswith("the arm cannot"):
                     action, _, why = s.stats.dead_end[len("the arm cannot "):].partition(": ")
                     ended[f"{action.split('(')[0]}: {why.rpartition('): ')[2][:70]}"] += 1
@@ -72,6 +76,10 @@ def main(argv=None) -> int:
         if len(ms):
             print(f"  plan per action: median {np.median(ms):.1f} ms, p95 {np.percentile(ms, 95):.1f} ms, "
                   f"max {ms.max():.1f} ms")
+        print(f"  actions the arm could not do (each a failed attempt to T, then a new plan): "
+              f"{sum(refused.values())}")
+        for why, k in refused.most_common():
+            print(f"    {k} x {why}")
         print(f"  episodes ended by an action the arm cannot do: {sum(ended.values())} of {episodes}")
         for why, k in ended.most_common():
             print(f"    {k} x {why}")
