@@ -109,6 +109,7 @@ class SimulatedReality:
         self._exec_rng = None
         self._noise_rngs: tuple[np.random.Generator, np.random.Generator] | None = None
         self._joints: np.ndarray | None = None      # a simulated arm's measured joints
+        self._payload = 0.0                         # and the gripper's mass it carries (kg)
 
     def start_episode(self, rng: np.random.Generator) -> Observation:
         domain = jittered_domain(rng, self.gap.friction, domain=self.domain_name, **self.options)
@@ -131,6 +132,8 @@ class SimulatedReality:
         self._noise_rngs = None if self.noise.exact else tuple(rng.spawn(1)[0].spawn(2))
         self._state = domain.symbolic_state(placed)     # the true state (reality's own)
         self._joints = None                             # the arm starts on its first step's plan
+        gripper = domain.scene_description(domain.properties(self.truth)).gripper
+        self._payload = gripper.palm_mass + 2 * gripper.finger_mass      # what a simulated arm carries
         return self._observed(placed, self._state, domain.measurements(placed), "")
 
     def execute(self, trajectory: np.ndarray, action: str, arm: ArmMotion | None = None) -> Observation:
@@ -141,8 +144,7 @@ class SimulatedReality:
                 arm = ArmMotion(arm.robot, arm.base, np.interp(arm.times, planned[:, 0], trajectory[:, 0]),
                                 arm.joints)
         if arm is not None:
-            gripper = self._domain.scene_description(self._domain.properties(self.truth)).gripper
-            trajectory, arm = follow(trajectory, arm, self._joints, gripper.palm_mass + 2 * gripper.finger_mass)
+            trajectory, arm = follow(trajectory, arm, self._joints, self._payload)
             self._joints = arm.joints[-1].copy()
         out = self.world.execute(trajectory, action, arm=arm)
         config, state = out.configuration, out.state

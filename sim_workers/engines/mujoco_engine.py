@@ -32,6 +32,7 @@ from dataclasses import dataclass
 import mujoco
 import numpy as np
 
+from ..robots.motion import capsule_frame
 from ..scene import Body, BoxShape, CylinderShape, Gripper, MeshShape, SceneDescription, engines_derive_alike, inertial
 
 # The drives: force = kv ((target - q) / (CATCH_UP dt) - qdot), capped at the limit: a
@@ -255,8 +256,6 @@ def _add_links(spec: mujoco.MjSpec, desc: SceneDescription, geoms: dict[str, lis
     times the movable bodies' (``priority`` makes it the contact's, as the pairs' products
     are elsewhere; the block domains' movable bodies share one coefficient, and where they
     do not the largest is taken)."""
-    from ..robots.motion import capsule_frame
-
     movable = [b for b in desc.bodies if b.mass]
     mu = float(desc.gripper.friction) * max((float(b.friction) for b in movable), default=1.0)
     for b in movable:

@@ -113,11 +113,6 @@ class ArmMotion:
         t = np.asarray(t, dtype=np.float64).reshape(-1)
         return np.column_stack([np.interp(t, self.times, self.joints[:, k]) for k in range(self.joints.shape[1])])
 
-    def link_poses(self, t: np.ndarray, arm: Arm | None = None) -> tuple[np.ndarray, np.ndarray]:
-        """World centre (S, L, 3) and quaternion (S, L, 4; x, y, z, w) of every link capsule
-        (``capsule_frame``: its z axis along its axis) at times `t`."""
-        return link_poses(arm or self.arm(), self.at(t))
-
 
 def link_poses(arm: Arm, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The world poses of `arm`'s link capsules at joint rows `q` (S, n): centres (S, L, 3)

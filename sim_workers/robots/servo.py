@@ -28,8 +28,9 @@ from functools import lru_cache
 import mujoco
 import numpy as np
 
-from .base import Arm
-from .motion import ArmMotion, capsule_frame
+from ..trajectory import sample
+from .base import Arm, robot
+from .motion import ArmMotion, capsule_frame, frames_batch
 
 __all__ = ["BANDWIDTH_HZ", "CONTROL_DT", "ServoArm"]
 
@@ -140,8 +141,6 @@ class ServoArm:
 @lru_cache(maxsize=8)
 def servo_for(robot_name: str, base: tuple | None, payload: float) -> ServoArm:
     """One ``ServoArm`` per (robot, base, payload) in a process (compiling costs ~ms)."""
-    from .base import robot
-
     return ServoArm(robot(robot_name).placed(base), payload)
 
 
@@ -150,9 +149,6 @@ def tool_rows(rows: np.ndarray, motion: ArmMotion) -> np.ndarray:
     at `motion`'s times, the tool pose from the forward kinematics of its joints (the yaw on
     the rows' turn, so a drive is never asked to spin round), the opening and efforts as
     the rows command them then."""
-    from ..trajectory import sample
-    from .motion import frames_batch
-
     arm = motion.arm()
     tool = arm.base @ frames_batch(arm.dh, motion.joints)[:, 5] @ arm.flange_to_tool
     out = np.column_stack([motion.times, sample(rows, motion.times)])
