@@ -118,7 +118,7 @@ def main(argv=None) -> int:
               "--set", f"n_blocks={args.objects}"] + [x for s in args.set for x in ("--set", s)]
     if args.resume:
         common.append("--resume")
-    bench_learning.main(common + ["--out", str(out / "off")])
+    bench_learning.main(common + ["--set", "counterfactual_rows=0", "--out", str(out / "off")])
     _share_t_star(out / "off" / args.domain, out / "on" / args.domain)
     bench_learning.main(common + ["--set", f"counterfactual_rows={args.rows}", "--out", str(out / "on")])
     result = compare(out, args.domain)

@@ -105,7 +105,7 @@ def _spec_fields(exclude: set[str], max_particles: int, max_episodes: int, max_s
         min(RunConfig.model_fields["max_steps"].default, max_steps), ge=1, le=max_steps,
         description=f"actions per episode at most; this server's limit is {max_steps} (--max-steps)"))
     fields["counterfactual_rows"] = (int, Field(
-        0, ge=0, le=max_particles,
+        min(RunConfig.model_fields["counterfactual_rows"].default, max_particles), ge=0, le=max_particles,
         description=f"counterfactual experience: rows of L drawn from the belief before each episode's "
                     f"first plan, each simulating every context the domain declares (0: off); at most "
                     f"this server's particle limit, {max_particles}"))

@@ -19,7 +19,7 @@ from .conftest import Server, stream_events, wait_for
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(600)]
 
 SPEC = {"agent": "tmoc", "particles": 3, "episodes": 5, "max_steps": 3, "seed": 5}
-TIMINGS = ("wall_s", "physics_s", "planning_s")
+TIMINGS = ("wall_s", "physics_s", "planning_s", "counterfactual_s")
 
 
 def _strip(records: list[dict]) -> list[dict]:

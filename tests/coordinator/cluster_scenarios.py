@@ -44,7 +44,7 @@ def strip(result: dict) -> dict:
     r = json.loads(json.dumps(result))
     r.pop("runtime", None)
     for e in r.get("episodes", []):
-        for k in ("wall_s", "physics_s", "planning_s"):
+        for k in ("wall_s", "physics_s", "planning_s", "counterfactual_s"):
             e.pop(k, None)
     return r
 

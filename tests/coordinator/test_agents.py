@@ -83,8 +83,12 @@ def test_every_agent_runs_an_episode_with_the_record_and_properties_it_documents
     assert 1 <= record["actions"] <= 3 and record["plans"]
     n_blocks = result["config"]["n_blocks"]
     assert sum(record["plans"][0]) == n_blocks         # every plan moves every block
-    if spec.planner == "optimal":                      # optimistic T before any data: one trip
+    asked = spec.sim_experience and spec.learn_belief and result["config"]["counterfactual_rows"] > 0
+    assert (record["counterfactual_trials"] > 0) == asked, record["counterfactual_trials"]
+    if spec.planner == "optimal" and not asked:        # optimistic T before any data: one trip
         assert record["plans"][0] == [n_blocks]
+    elif spec.planner == "optimal":                    # the prior's worlds: a full load topples
+        assert len(record["plans"][0]) > 1, record["plans"][0]
     post = record["posterior"]
     if spec.learn_belief:
         assert record["ess"] is not None and "mean" in post and post["size_std"] > 0

@@ -92,7 +92,7 @@ def test_service_pool_grows_onto_a_node_that_joined_between_tasks(scenarios):
     assert t2["nodes"] == t2["result"]["runtime"]["nodes"]
     # Same spec, same seed: the same episodes and summary as the single-node run.
     for e in api["episodes2"]:
-        for k in ("wall_s", "physics_s", "planning_s"):
+        for k in ("wall_s", "physics_s", "planning_s", "counterfactual_s"):
             e.pop(k, None)
     assert api["episodes2"] == single["result"]["episodes"]
     assert t2["result"]["summary"] == single["result"]["summary"]

@@ -220,7 +220,9 @@ def test_a_fallback_is_replayed_by_the_particle_worlds_from_the_trajectory_start
     from coordinator.loop.episode import REPLAYED
     from planner.motion import Transit
 
-    s = Session(RunConfig(particles=4, episodes=1, seed=0, likelihood=likelihood, particle_budget="fixed"))
+    # The recording pool replays actions only: no counterfactual snapshot to ask it for.
+    s = Session(RunConfig(particles=4, episodes=1, seed=0, likelihood=likelihood, particle_budget="fixed",
+                          counterfactual_rows=0))
     config = s.domain.initial_configuration(s.domain.true_properties())
     first = Observation(config, s.domain.symbolic_state(config), s.domain.measurements(config))
     s.shard_pool = _RecordingPool(len(first.measurements))
