@@ -30,8 +30,8 @@ from .checkpoint import restore_session, session_checkpoint
 from .episode import EpisodeStats, utility_terms
 from .observer import Prediction, RunObserver, StepEvent
 from .particle_worlds import predictions, simulate_rows
-from ..transition.counterfactual import (REFRESH_ESS_FRACTION, Counterfactual, ess_fraction, row_properties,
-                                        simulate as simulate_counterfactual)
+from ..transition.counterfactual import (REFRESH_ESS_FRACTION, Counterfactual, SnapshotStopped, ess_fraction,
+                                        row_properties, simulate as simulate_counterfactual)
 from ..transition.experience import ExperiencePool
 from ..baselines.grounding_bandit import GroundingBandit
 from ..particle_filter import Belief, ParticleFilter, RealStep, Reweighting
@@ -112,6 +112,7 @@ class Session:
         # The counterfactual snapshot T uses (issue 40): before each episode's first plan, and
         # redrawn at a replan once the belief has moved from it.
         self.counterfactual: Counterfactual | None = None
+        self._should_stop: Callable[[], bool] | None = None     # while run_episode plans
         self.transition = self._transition_model()
         self.episode = 0
         self.episodes: list[dict] = []
@@ -201,7 +202,7 @@ class Session:
             self.shard_pool, self.domain, self.L.names, k, self.belief.particles, self.belief.weights,
             row_properties(self.L.names, np.asarray(mean, dtype=np.float64), k), m, self.n_blocks,
             self.task.contexts(self.n_blocks), np.random.SeedSequence(self.config.seed, spawn_key=key),
-            self.episode, refresh, (mean, std))
+            self.episode, refresh, (mean, std), should_stop=self._should_stop)
         self.stats.counterfactual_trials += self.counterfactual.trials
         self.stats.counterfactual_s += self.counterfactual.wall_s
         self.transition = self._transition_model()
@@ -587,7 +588,13 @@ class Session:
         while True:
             if should_stop is not None and should_stop():
                 raise EpisodeInterrupted(f"episode {self.episode} stopped after {self.stats.actions} actions")
-            step = self.next_step()
+            self._should_stop = should_stop         # a counterfactual snapshot polls it too
+            try:
+                step = self.next_step()
+            except SnapshotStopped as exc:
+                raise EpisodeInterrupted(f"episode {self.episode}: {exc}") from None
+            finally:
+                self._should_stop = None
             if step is None:          # done before acting (e.g. nothing left to deliver)
                 return self._finish_episode()
             # an arm's joints go to the reality too (its links move in the simulated one)

@@ -35,18 +35,23 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
+from typing import Callable
 
 import numpy as np
 
 from ..particle_filter.belief import systematic_resample
 
-__all__ = ["REFRESH_ESS_FRACTION", "Counterfactual", "context_counts", "draw_rows", "ess_fraction",
-           "row_properties", "simulate"]
+__all__ = ["REFRESH_ESS_FRACTION", "Counterfactual", "SnapshotStopped", "context_counts", "draw_rows",
+           "ess_fraction", "row_properties", "simulate"]
 
 # A snapshot is redrawn when its rows would be worth fewer than this share of their number
 # as an importance sample of the belief now: the threshold the filter resamples at
 # (``Reweighting``: ESS < N / 2), for the same reason (docs/LOOP.md).
 REFRESH_ESS_FRACTION = 0.5
+
+
+class SnapshotStopped(Exception):
+    """A snapshot told to stop (a cancel or a shutdown) between two of its contexts."""
 
 
 @dataclass
@@ -145,10 +150,14 @@ def context_counts(rates: dict, contexts, trials: int,
 def simulate(pool, physics, names, per_object: int, rows: np.ndarray, weights: np.ndarray,
              believed: dict[str, float], m: int, n_objects: int, contexts,
              seed: np.random.SeedSequence, episode: int, refresh: int = 0,
-             marginals: tuple[np.ndarray, np.ndarray] | None = None) -> Counterfactual:
+             marginals: tuple[np.ndarray, np.ndarray] | None = None,
+             should_stop: Callable[[], bool] | None = None) -> Counterfactual:
     """The snapshot of M = `m` rows drawn from the belief (`rows`, `weights`) with Y at
     `believed`, on `pool`'s shards (``ShardPool.probe_rows``); `marginals`: the belief's mean
-    and std per column of L, kept for the redraw test."""
+    and std per column of L, kept for the redraw test. With `should_stop` the contexts go to
+    the shards one at a time and it is polled before each (``SnapshotStopped``): a snapshot
+    is tens of seconds of physics, and a cancel must not wait for all of it. The counts are
+    the same either way (each trial's world is seeded by its row alone)."""
     t0 = time.perf_counter()
     mean, std = (None, None) if marginals is None else (np.array(marginals[0]), np.array(marginals[1]))
     jobs = physics.counterfactual_jobs(n_objects)
@@ -158,7 +167,7 @@ def simulate(pool, physics, names, per_object: int, rows: np.ndarray, weights: n
     picked = draw_rows(weights, m, rng)
     truths = [row_properties(names, rows[i], per_object) for i in picked]
     trial_seeds = rng.integers(0, 2**63 - 1, size=m, dtype=np.int64)
-    outcome = np.asarray(pool.probe_rows(jobs, truths, believed, trial_seeds)["successes"])
+    outcome = _probe(pool, jobs, truths, believed, trial_seeds, should_stop)
     reached = (outcome >= 0).sum(axis=0)
     wins = (outcome == 1).sum(axis=0)
     keys = [(a, int(k)) for a, k in jobs]
@@ -169,3 +178,17 @@ def simulate(pool, physics, names, per_object: int, rows: np.ndarray, weights: n
     shares = physics.counterfactual_rates({j: float(r) for j, r in zip(keys, reached)}, m, n_objects)
     return Counterfactual(episode, m, context_counts(rates, contexts, m, shares), m * len(jobs),
                           time.perf_counter() - t0, refresh, mean, std)
+
+
+def _probe(pool, jobs: list, truths: list[dict], believed: dict, seeds: np.ndarray,
+           should_stop: Callable[[], bool] | None) -> np.ndarray:
+    """(M, J) outcomes of every job for every row: one call, or one per job polling
+    `should_stop` before each."""
+    if should_stop is None:
+        return np.asarray(pool.probe_rows(jobs, truths, believed, seeds)["successes"])
+    columns = []
+    for job in jobs:
+        if should_stop():
+            raise SnapshotStopped(f"counterfactual snapshot stopped after {len(columns)} of {len(jobs)} contexts")
+        columns.append(np.asarray(pool.probe_rows([job], truths, believed, seeds)["successes"]))
+    return np.concatenate(columns, axis=1)

@@ -153,3 +153,33 @@ def test_a_context_the_belief_cannot_reach_is_left_out_not_failed():
     assert snap.counts[("pickup", 0)][1] == 2.0 and snap.counts[("pickup", 0)][0] <= 1.0
     for k in (1, 2, 3):
         assert snap.counts[("push", k)][1] == 1.0, snap.counts
+
+
+@pytest.mark.slow
+def test_a_stop_during_the_snapshot_takes_effect_between_its_contexts():
+    """A snapshot is tens of seconds of physics at 8 blocks (one uninterruptible step, a
+    cancel waited 21 s for one): with a stop to poll, the contexts go to the shards one at a
+    time and the stop is polled before each; the counts do not change."""
+    from coordinator.loop.runner import run
+
+    cfg = RunConfig(n_blocks=N, particles=4, true_size=SIZE, counterfactual_rows=2, seed=3, episodes=1,
+                    max_steps=3, particle_budget="fixed")
+    pool = ShardPool(cfg.domain, {"n_blocks": N}, n_shards=0)
+    polls: list[int] = []
+
+    def stop_at_the_fourth_poll() -> bool:     # the run's, the episode's, before context 1, 2
+        polls.append(1)
+        return len(polls) >= 4
+
+    try:
+        stopped = run(cfg, pool=pool, should_stop=stop_at_the_fourth_poll)
+        assert stopped["episodes"] == [] and len(polls) == 4
+        assert pool.timings["calls"] == 1          # one context's trials of the 9 ran
+        polled = run(cfg, pool=pool, should_stop=lambda: False)
+        plain = run(cfg, pool=pool)
+    finally:
+        pool.close()
+    (a,), (b,) = polled["episodes"], plain["episodes"]
+    assert a["counterfactual_trials"] == b["counterfactual_trials"] > 0
+    for key in ("utility", "plans", "failures", "posterior"):
+        assert a[key] == b[key], key
