@@ -33,7 +33,8 @@ def test_posteriors_cover_the_truth_across_a_small_grid():
     zs, sharp = [], []
     for domain, size, truth, options in GRID:
         cfg = RunConfig(domain=domain, n_blocks=4, true_size=size, truth=truth, options=options,
-                        particles=12, particle_budget="fixed", episodes=2, seed=1, max_steps=40)
+                        particles=12, particle_budget="fixed", episodes=2, seed=1, max_steps=40,
+                        counterfactual_rows=0)      # calibration, not T's prior: the paper's loop
         result = run(cfg)
         posterior = result["episodes"][-1]["posterior"]
         L = load(domain, n_blocks=4, **options).physics.L

@@ -487,7 +487,7 @@ def test_the_seed_91_grasp_loop_is_gone():
     runs = {}
     for name, kw in (("new", {}), ("old", PRE_ISSUE_37_FILTER)):
         records: list[dict] = []
-        cfg = RunConfig(true_size=0.044, seed=91, particles=16, episodes=1, max_steps=10,
+        cfg = RunConfig(true_size=0.044, seed=91, particles=16, episodes=1, max_steps=10, counterfactual_rows=0,
                         sensor_noise=0.0, perception_sigma=0.0, options={"grip_depth_ratio": 0.0}, **kw)
         run(cfg, on_episode=lambda rec, session, ck, out=records: out.extend(session.step_records))
         runs[name] = _longest_failure_run(records)

@@ -38,7 +38,8 @@ def test_posterior_converges_to_the_hidden_size():
 
 
 def test_transition_model_learns_that_heavy_loads_fall_and_the_plan_splits():
-    cfg = RunConfig(agent="tmoc", particles=8, episodes=3, seed=1)
+    # The paper's loop (no counterfactual snapshot): T learns from the real failures alone.
+    cfg = RunConfig(agent="tmoc", particles=8, episodes=3, seed=1, counterfactual_rows=0)
     result = run(cfg)
     T = result["summary"]["transition"]
     # Some heavy context the robot tried and saw fail is learned below the light ones

@@ -16,7 +16,7 @@ from coordinator.loop.runner import run
 def test_a_reality_only_failure_is_learned_within_an_episode():
     # Four blocks, stacks onto two or more fail in reality only: the optimum is 2 + 2.
     cfg = RunConfig(agent="tmoc", n_blocks=4, particles=8, episodes=2, seed=3, max_steps=40,
-                    particle_budget="fixed", reality_fail="stack:2")
+                    particle_budget="fixed", reality_fail="stack:2", counterfactual_rows=0)   # the paper's loop
     result = run(cfg)
     first, second = result["episodes"]
     assert first["plans"][0] == [4]                       # the optimistic start tries one trip
