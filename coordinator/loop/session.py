@@ -112,7 +112,7 @@ class Session:
         # The counterfactual snapshot T uses (issue 40): before each episode's first plan, and
         # redrawn at a replan once the belief has moved from it.
         self.counterfactual: Counterfactual | None = None
-        self._should_stop: Callable[[], bool] | None = None     # while run_episode plans
+        self._should_stop: Callable[[], bool] | None = None     # while run_episode drives
         self.transition = self._transition_model()
         self.episode = 0
         self.episodes: list[dict] = []
@@ -585,16 +585,22 @@ class Session:
         `should_stop` is polled before each action: True raises EpisodeInterrupted (the
         episode is dropped; the session stays at its last episode boundary's checkpoint)."""
         self.start_episode(reality.start_episode(reality_rng))
+        # A counterfactual snapshot polls the stop too, wherever a plan is made: before an
+        # action (`next_step`) and at the replan after a failure (`observe`).
+        self._should_stop = should_stop
+        try:
+            return self._drive(reality, should_stop)
+        except SnapshotStopped as exc:
+            raise EpisodeInterrupted(f"episode {self.episode}: {exc}") from None
+        finally:
+            self._should_stop = None
+
+    def _drive(self, reality, should_stop: Callable[[], bool] | None) -> dict:
+        """``run_episode``'s loop: act, observe, until the episode's record."""
         while True:
             if should_stop is not None and should_stop():
                 raise EpisodeInterrupted(f"episode {self.episode} stopped after {self.stats.actions} actions")
-            self._should_stop = should_stop         # a counterfactual snapshot polls it too
-            try:
-                step = self.next_step()
-            except SnapshotStopped as exc:
-                raise EpisodeInterrupted(f"episode {self.episode}: {exc}") from None
-            finally:
-                self._should_stop = None
+            step = self.next_step()
             if step is None:          # done before acting (e.g. nothing left to deliver)
                 return self._finish_episode()
             # an arm's joints go to the reality too (its links move in the simulated one)
