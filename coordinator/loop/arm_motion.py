@@ -1,7 +1,8 @@
 """An arm's joint trajectory for a step's tool path (issue 41): follow the tool rows by
 inverse kinematics to a tolerance, every link checked against the believed scene; where
 following fails in the transit (a link in the way, a pose out of reach, a branch flip), plan
-that span in joint space by RRT*; time the whole path within the joint limits (toppra),
+that span in joint space to another branch (a straight move, or up, across and down above the
+scene, before any RRT* search); time the whole path within the joint limits (toppra),
 never faster than the domain timed the tool. The step's rows are then the arm's tool path,
 at the arm's times, so the particle worlds simulate what the arm will do.
 
@@ -37,9 +38,14 @@ RRT_ITERATIONS = 300
 TILT = 0.05             # rad the tool may tilt from pointing down in a joint-space move (~3 degrees)
 # Wall-clock cap on one step's joint-space searches (each RRT* also stops at its iteration
 # count and 5 s): a step with many branches to try cannot hold a session's thread for long.
-# The measured slowest step took 7.7 s (benchmarks/bench_arm_motion.py).
+# The measured slowest step took 0.53 s (benchmarks/bench_arm_motion.py; 7.7 s when RRT*
+# came before the straight and over-the-top moves).
 STEP_BUDGET_S = 10.0
 HAND_RADIUS = 0.065     # m: a tilted gripper's capsule, its palm's half width (55 mm) plus 10 mm
+# How far above the scene's highest top the tool goes to change branch (m): the tilted
+# gripper's capsule radius and the 2 cm the links are cleared by elsewhere (Bullet's contact
+# threshold), rounded up.
+SAFE_CLEARANCE = 0.10
 
 
 class ArmPlanningError(MotionPlanningError):
@@ -241,6 +247,18 @@ def _branches_at(arm: Arm, row: np.ndarray, near: np.ndarray) -> list[np.ndarray
     return sorted(out, key=lambda q: (float(np.abs(q - near).max()), float(np.abs(q - near).sum())))
 
 
+def _candidates(arm: Arm, row: np.ndarray, near: np.ndarray) -> list[np.ndarray]:
+    """Every branch at a row's tool pose within the limits, nearest `near` first (each on
+    the turn of its joints nearest `near`), then each on the turns nearest the arm's home
+    where those differ. Joints wound a turn away over an episode (a pan at 6.1 rad) leave a
+    motion no room before their limits (+-2 pi), so a push from there flips branch; a
+    transit is where to unwind them."""
+    out: list[np.ndarray] = []
+    for around in (near, arm.home):
+        out += [q for q in _branches_at(arm, row, around) if not any(np.allclose(q, seen) for seen in out)]
+    return out
+
+
 def plan_arm_step(arm: Arm, rows: np.ndarray, obstacles: list, *, start: np.ndarray, seed: int,
                   transit_end: float | None = None, tool_valid=None,
                   contact_from: float | None = None, held: float = 0.0) -> ArmPlan:
@@ -288,34 +306,89 @@ def plan_arm_step(arm: Arm, rows: np.ndarray, obstacles: list, *, start: np.ndar
         if head is None:
             raise followed from None
         reasons: list[str] = []
-        for qj in _branches_at(arm, rows[j], head.qs[-1]):
-            if j == 0 and np.abs(qj - q0).max() < 1e-6:
-                continue                          # the branch that failed
-            hit = scene.contact(qj)
-            if hit is not None:
-                reasons.append(f"the {hit[0]} meets " + ("the table" if hit[1] < 0 else f"obstacle {hit[1]}"))
-                continue
-            try:
-                rest = _follow_rows(arm, rows[j:], qj, scene, table, contact_from)
-                bridge = _bridge(arm, hand, head.qs[-1], qj, seed + j, deadline)
-            except ArmPlanningError as exc:
-                reasons.append(str(exc).split(": ", 1)[-1])
-                continue
-            n = len(bridge) - 1
-            path.extend(head)
-            path.add(bridge[1:], [rows[j, 1:]] * n, [0.0] * n, [rows[k, 0]] * (n - 1) + [rows[j, 0]])
-            path.extend(rest)
-            replanned = n
-            break
-        else:
+        found = _reach_a_branch(arm, rows, q0, head.qs[-1], j, hand, scene, table, contact_from,
+                                seed + j, deadline, reasons, _safe_height(obstacles))
+        if found is None:
             tried = "; ".join(dict.fromkeys(reasons)) or "no other branch within the limits"
             raise ArmPlanningError(f"{followed} (and from the other branches at row {j}: {tried})"[:400]) from None
+        bridge, rest = found
+        n = len(bridge) - 1
+        path.extend(head)
+        path.add(bridge[1:], [rows[j, 1:]] * n, [0.0] * n, [rows[k, 0]] * (n - 1) + [rows[j, 0]])
+        path.extend(rest)
+        replanned = n
     qs_arr = np.array(path.qs)
     timed = time_joint_path(qs_arr, np.array([jt.max_velocity for jt in arm.joints]),
                             np.full(len(arm.joints), arm.acceleration), nominal_dt=np.array(path.dts))
     tool, tilt = _tool_rows(arm, qs_arr, np.array(path.rs)[:, 4:])
     out = np.column_stack([timed.t + rows[0, 0], tool])
     return ArmPlan(timed, out, qs_arr[-1], np.array(path.src), replanned, tilt if replanned else 0.0)
+
+
+def _reach_a_branch(arm: Arm, rows: np.ndarray, q0: np.ndarray, qa: np.ndarray, j: int, hand, scene, table,
+                    contact_from, seed: int, deadline: float, reasons: list[str], safe_z: float):
+    """(bridge, the rest's path): a branch at row `j` from which the rest of the rows can be
+    followed, and a joint path to it from `qa`; None, with `reasons`, if there is none.
+
+    The cheap moves come first, over every candidate, before any search: the straight joint
+    segment; then up, across and down (``_over_the_top``: the tool lifted above everything
+    in the scene on its branch, the arm reconfigured up there, lowered on the new branch),
+    what an industrial cell does to change its wrist or shoulder; only then RRT*, nearest
+    first. A search that fails costs up to 5 s of the step's 10, and a wrist flip a
+    lift makes free must not wait behind two failed reconfigurations near a tower."""
+    ready = []
+    for qj in _candidates(arm, rows[j], qa):
+        if j == 0 and np.abs(qj - q0).max() < 1e-6:
+            continue                          # the branch that failed
+        hit = scene.contact(qj)
+        if hit is not None:
+            reasons.append(f"the {hit[0]} meets " + ("the table" if hit[1] < 0 else f"obstacle {hit[1]}"))
+            continue
+        try:
+            rest = _follow_rows(arm, rows[j:], qj, scene, table, contact_from)
+        except ArmPlanningError as exc:
+            reasons.append(str(exc).split(": ", 1)[-1])
+            continue
+        if _clear(hand, np.stack([qa, qj])):
+            return densify_joints(np.stack([qa, qj]), 0.05), rest
+        ready.append((qj, rest))
+    for qj, rest in ready:
+        via = _over_the_top(arm, qa, qj, safe_z)
+        if via is not None and _clear(hand, via):
+            return densify_joints(via, 0.05), rest
+    for qj, rest in ready:
+        try:
+            return _bridge(arm, hand, qa, qj, seed, deadline), rest
+        except ArmPlanningError as exc:
+            reasons.append(str(exc).split(": ", 1)[-1])
+    return None
+
+
+def _clear(is_valid, waypoints: np.ndarray) -> bool:
+    """Whether every joint segment between the waypoints is valid, checked every CHECK_STEP."""
+    return all(is_valid(q) for q in densify_joints(waypoints, CHECK_STEP)[1:])
+
+
+def _safe_height(obstacles: list) -> float:
+    """A tool height above everything in the scene (m): the highest obstacle's top (a box's
+    corners at its rotation) and SAFE_CLEARANCE."""
+    tops = [float(c[2] + np.abs(np.asarray(r)[2]) @ np.asarray(h)) for c, h, r in obstacles]
+    return max(tops, default=0.0) + SAFE_CLEARANCE
+
+
+def _over_the_top(arm: Arm, qa: np.ndarray, qb: np.ndarray, safe_z: float) -> np.ndarray | None:
+    """Joint waypoints from `qa` to `qb` (both with the tool pointing down) through the same
+    tool points lifted to `safe_z`, each lift on its own branch: (4, 6), or None where a lifted
+    pose is out of reach."""
+    lifted = []
+    for q in (qa, qb):
+        t = arm.tool(q)
+        try:
+            lifted.append(arm.joints_for(t[0, 3], t[1, 3], max(safe_z, float(t[2, 3])),
+                                         math.atan2(t[1, 0], t[0, 0]), q))
+        except Unreachable:
+            return None
+    return np.stack([qa, lifted[0], lifted[1], qb])
 
 
 def _hand_checker(arm: Arm, obstacles: list, links, tool_valid, held: float):

@@ -226,3 +226,66 @@ def test_an_action_the_arm_cannot_do_is_a_failure_t_learns_not_a_silent_end():
     assert ep["dead_end"] == ep["arm_refusal_notes"][0] and ep["failures"].get("push") == 1
     assert s.experience.counts()["real"][("push", 8)] == (0.0, 1.0)
     assert s.transition.to_planner()["push"][7] < 1.0
+
+
+def _push_of_a_tower(size: float, height: int):
+    """(session, configuration, key pose, tool rows, transit end) of the push of a tower of
+    `height` blocks of `size` (jittered as stacked, seed 0), the gripper above it as a stack
+    left it, in a run with the UR5e."""
+    from coordinator.loop.reality import Observation
+    from sim_workers.configuration import Configuration
+    from sim_workers.stack_and_push.probes import tower_configuration
+
+    # (robot: the push of a run with an arm: the open front finger, RunConfig's push_open)
+    s = Session(RunConfig(domain="stack_and_push", particles=1, episodes=1, true_size=size, known_properties=True,
+                          robot="ur5e"))
+    d = s.domain
+    objects = tower_configuration(d, np.full(8, size), height, np.random.default_rng(0)).objects
+    top = objects[height - 1]
+    config = Configuration(np.array([top[0], top[1], top[2] + 1.5 * size + d.spec.carry_margin, 0.0, 0.05]), objects)
+    s.start_episode(Observation(config, d.symbolic_state(config), d.measurements(config)))
+    action = "push(r,tower,start,goal)"
+    x, _ = s._real_pose(config, action)
+    transit = s._transit(config, d.pre_pose(config, action, x))
+    rows = d.action_trajectory(config, action, x, transit)
+    t_pre = d.transit_end_time(config, action, x, transit)
+    return s, config, x, rows, t_pre
+
+
+def test_a_wrist_over_the_tower_changes_branch_above_the_scene_in_a_straight_move(monkeypatch):
+    """Issue 41: after stacking a tower of eight 32 mm blocks, the UR5e's wrist branch puts its
+    wrist over the tower when the tool comes down behind it to push: every link of that
+    branch is checked and refused. The arm changes branch above the scene (up, across,
+    down: three straight joint moves, no search) and pushes. (In the learning benchmark's
+    run this comes from, RRT* alone spent the step's 10 s on reconfigurations near the
+    tower and the push was refused; here no search is allowed.)"""
+    from coordinator.loop.arm_motion import SAFE_CLEARANCE, contact_time
+    from coordinator.loop.transit import transit_checker
+    from sim_workers.robots.base import tool_pose
+    from sim_workers.robots.kinematics import nearest
+
+    size = 0.0321
+    s, config, x, rows, t_pre = _push_of_a_tower(size, 8)
+    sizes = np.full(8, size)
+    obstacles = s.domain.obstacles(config, sizes)
+    arm = s.robot
+    # the branch the arm stood on in the benchmark's run: wrist 2 at -pi/2, shoulder pan 2.4
+    start = nearest(arm.branches(tool_pose(*config.robot[:4]), 0.0), np.array([2.37, -1.73, 1.67, -1.52, -1.57, 2.39]),
+                    arm.low, arm.high)
+    kw = dict(start=start, seed=0, transit_end=t_pre,
+              tool_valid=transit_checker(s.domain, config, sizes, 0.0, float(rows[:, 5].max())),
+              contact_from=contact_time(rows, x, t_pre))
+    def no_search(*a, **k):
+        raise AssertionError("a search where three straight moves do")
+    monkeypatch.setattr("coordinator.loop.arm_motion.plan_joint_rrtstar", no_search)
+    plan = plan_arm_step(arm, rows, obstacles, **kw)
+    assert plan.replanned > 0
+    tops = max(float(c[2] + h[2]) for c, h, _ in obstacles)
+    assert plan.rows[:, 3].max() >= tops + SAFE_CLEARANCE - 1e-6          # it went over the top
+    assert np.sign(np.sin(plan.end[4])) != np.sign(np.sin(start[4]))     # on the other wrist branch
+    after = plan.source_t >= t_pre - 1e-9
+    assert max(_distance_to_path(p, rows[rows[:, 0] >= t_pre - 1e-9]) for p in plan.rows[after, 1:4]) < TOLERANCE + 1e-6
+    clear = links_checker(arm, obstacles)
+    t_contact = plan.time_of(kw["contact_from"])
+    for q in densify_joints(plan.path.q[plan.path.t + plan.rows[0, 0] <= t_contact - 1e-9], 0.01):
+        assert clear(q)
