@@ -354,7 +354,11 @@ class Session:
         False, with the episode ended as a dead end naming why, when the arm cannot."""
         t0 = time.perf_counter()
         try:
-            sizes = self.clearance_sizes()
+            # The links clear the belief's quantile (they are not the domain's); the gripper is
+            # checked as the domain's own transit checks it, at the believed sizes: the
+            # transit's end is a pose a few mm from what the action handles, in the
+            # conservative scene it would already touch it.
+            sizes, believed = self.clearance_sizes(), self.believed_sizes()
             obstacles = self.domain.obstacles(config, sizes)
             measured = self.observation.joint_positions
             start = self.joints if measured is None else measured       # what the arm reports wins
@@ -365,7 +369,7 @@ class Session:
             opening = float(np.max(step.trajectory[:, 5]))
             plan = plan_arm_step(self.robot, step.trajectory, obstacles, start=start,
                                  seed=int(self.rng.integers(2**31)), transit_end=step.transit_end,
-                                 tool_valid=transit_checker(self.domain, config, sizes, self._held_size(sizes),
+                                 tool_valid=transit_checker(self.domain, config, believed, self._held_size(believed),
                                                             opening),
                                  contact_from=contact_time(step.trajectory, step.pose, step.transit_end),
                                  held=self._held_size(sizes))

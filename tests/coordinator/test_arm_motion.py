@@ -289,3 +289,38 @@ def test_a_wrist_over_the_tower_changes_branch_above_the_scene_in_a_straight_mov
     t_contact = plan.time_of(kw["contact_from"])
     for q in densify_joints(plan.path.q[plan.path.t + plan.rows[0, 0] <= t_contact - 1e-9], 0.01):
         assert clear(q)
+
+
+def test_the_gripper_in_a_joint_space_transit_is_checked_at_the_believed_sizes(monkeypatch):
+    """Issue 41: the links clear the belief's 97.5 % quantile; the gripper is checked as the
+    domain's own transit checks it, at the believed sizes. The push's transit ends 4 mm behind
+    the tower's believed rear face: at the quantile (a prior still wide) the tower would
+    already touch the fingers there, and every joint-space move to it was refused ("goal is in
+    collision": a tower of 4 the UR5e could not push in bench_arm_motion's episodes)."""
+    from coordinator.loop import session as session_module
+    from coordinator.loop.reality import Observation
+    from sim_workers.configuration import Configuration
+    from sim_workers.stack_and_push.probes import tower_configuration
+
+    s = Session(RunConfig(domain="stack_and_push", n_blocks=4, particles=16, episodes=1, true_size=0.045, seed=0,
+                          robot="ur5e"))
+    d = s.domain
+    objects = tower_configuration(d, np.full(4, 0.045), 4, np.random.default_rng(0)).objects
+    config = Configuration(np.array([objects[-1][0], objects[-1][1], objects[-1][2] + 0.1175, 0.0, 0.05]), objects)
+    s.start_episode(Observation(config, d.symbolic_state(config), d.measurements(config)))
+    # A belief with a long upper tail (in bench_arm_motion's refused push the believed size
+    # was 45.2 mm and its 97.5 % quantile 58.3 mm); here 20 mm above the believed size, past
+    # the largest particle that Y's push pose keeps clear of.
+    monkeypatch.setattr(s, "clearance_sizes", lambda: s.believed_sizes() + 0.02)
+    seen = {}
+    real = session_module.plan_arm_step
+
+    def capture(arm, rows, obstacles, **kw):
+        seen.update(kw, rows=rows)
+        return real(arm, rows, obstacles, **kw)
+    monkeypatch.setattr(session_module, "plan_arm_step", capture)
+    step = s.next_step()
+    assert step is not None and step.action == "push(r,tower,start,goal)", s.stats.arm_refusals
+    rows = seen["rows"]
+    end = rows[np.flatnonzero(rows[:, 0] <= seen["transit_end"] + 1e-9)[-1]]
+    assert seen["tool_valid"](end[1:5])
