@@ -212,20 +212,31 @@ def test_the_arm_moves_in_the_particle_worlds_and_the_simulated_arm_reports_the_
 
 
 def test_an_action_the_arm_cannot_do_is_a_failure_t_learns_not_a_silent_end():
-    """Issue 41: a tower of 8 (34 mm blocks) the UR5e cannot push from its base: T gets a
-    failed push of 8 (so the next plans build lower towers), the episode pays a failed
-    action, and with nothing else to plan from there the episode ends naming why."""
-    cfg = RunConfig(domain="stack_and_push", particles=4, true_size=0.034, episodes=1, seed=0, robot="ur5e")
-    s = Session(cfg)
-    reality = SimulatedReality("stack_and_push", {"n_blocks": cfg.n_blocks, **cfg.options}, s.props_of(s.truth_row()))
-    try:
-        ep = s.run_episode(reality, np.random.default_rng(0))
-    finally:
-        reality.close()
-    assert ep["arm_refusals"] == 1 and ep["arm_refusal_notes"][0].startswith("the arm cannot push(r,tower")
-    assert ep["dead_end"] == ep["arm_refusal_notes"][0] and ep["failures"].get("push") == 1
-    assert s.experience.counts()["real"][("push", 8)] == (0.0, 1.0)
-    assert s.transition.to_planner()["push"][7] < 1.0
+    """Issue 41: a block that came to rest beside the UR5e's base, 0.11 m from its axis (the
+    wrist centre would have to be inside the shoulder's 0.133 m offset): T gets a failed
+    pickup in that context, the episode pays a failed action, and with nothing else to plan
+    from there the episode ends naming why. (A tower of eight 34 mm blocks the arm could not
+    push was this test's case until the arm learned to change branch above the scene.)"""
+    from coordinator.loop.reality import Observation
+    from sim_workers.configuration import Configuration
+    from sim_workers.container.probes import loaded_configuration
+
+    s = Session(RunConfig(domain="container", n_blocks=4, particles=4, true_size=0.045, episodes=1, seed=0,
+                          robot="ur5e"))
+    d = s.domain
+    loaded = loaded_configuration(d, np.full(4, 0.045), 3, np.random.default_rng(0))     # b1-b3 in the tray
+    objects = loaded.objects.copy()
+    objects[4] = [d.robot_base[0] + 0.11, d.robot_base[1], 0.0225, 0.0, 0.0, 0.0, 1.0]
+    config = Configuration(loaded.robot, objects)
+    s.start_episode(Observation(config, d.symbolic_state(config), d.measurements(config)))
+    before = s.transition.to_planner()["pickup"]
+    assert s.next_step() is None
+    notes = s.stats.arm_refusals
+    assert len(notes) == 1 and notes[0].startswith("the arm cannot pickup(r,b4,table): unreachable pose")
+    assert "shoulder offset" in notes[0] and s.stats.dead_end == notes[0]
+    assert s.experience.counts()["real"] == {("pickup", 0): (0.0, 1.0)}
+    assert s.transition.to_planner()["pickup"] < before
+    assert s.stats.actions == 1 and s.stats.failures == {"pickup": 1}
 
 
 def _push_of_a_tower(size: float, height: int):
