@@ -38,7 +38,7 @@ RRT_ITERATIONS = 300
 TILT = 0.05             # rad the tool may tilt from pointing down in a joint-space move (~3 degrees)
 # Wall-clock cap on one step's joint-space searches (each RRT* also stops at its iteration
 # count and 5 s): a step with many branches to try cannot hold a session's thread for long.
-# The measured slowest step took 0.53 s (benchmarks/bench_arm_motion.py; 7.7 s when RRT*
+# The measured slowest step took 0.48 s (benchmarks/bench_arm_motion.py; 7.7 s when RRT*
 # came before the straight and over-the-top moves).
 STEP_BUDGET_S = 10.0
 HAND_RADIUS = 0.065     # m: a tilted gripper's capsule, its palm's half width (55 mm) plus 10 mm
