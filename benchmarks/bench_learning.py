@@ -11,8 +11,8 @@ least 90 % of the runs, none whose utility fails to improve, coverage (truth wit
 posterior std) of at least 90 %.
 
 Tails (issue 37), over runs, not truths, from each run's step records: the regret at the
-last episode and the longest run of back-to-back failures of one action on one object
-(median, p90, worst); the shares of runs that loop (such a run >= 6), that never improve
+last episode and the longest run of failed attempts of one action on one object, only its
+success ending it (median, p90, worst); the shares of runs that loop (such a run >= 6), that never improve
 on episode 1 (and did not start within 30 of the optimum) and that are within 30 of the
 optimum by episode 4; calibration over every entry of L: coverage (|z| <= 2), mean z^2,
 median and p90 |z|. They are in each domain's sweep.json (summary.tails, rows[].tails),

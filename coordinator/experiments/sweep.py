@@ -18,7 +18,8 @@ posterior's +- 2 std), the truths whose utility does not improve, and the worst 
 
 Tails (issue 37): with several seeds per truth every run is also judged on its own
 (``tails.run_tails``, from its step records ``runs/<key>/<r>.steps.jsonl`` and its run
-file): regret per episode, the longest run of back-to-back failures of one action, whether
+file): regret per episode, the longest run of failed attempts of one action (only its
+success ends it), whether
 it loops (that run >= ``LOOP_RUN``) or never improves, |z| per entry of L. The summary's
 ``tails`` gives their distributions over runs (median, p90, worst), the shares that loop,
 never improve or are near the optimum by episode ``BY_EPISODE``, and calibration (coverage,
@@ -270,11 +271,18 @@ def _dist(d: dict | None, digits: int = 0) -> str:
     return "-" if d is None else f"{d['median']:.{digits}f} / {d['p90']:.{digits}f} / {d['worst']:.{digits}f}"
 
 
+def _failure_run_words(t: dict) -> str:
+    """What the summary's failure runs count, as its own definitions say: a summary made
+    before only an action's success ended its run counted back-to-back failures."""
+    loops = t.get("definitions", {}).get("loops", "")
+    return "back-to-back failures" if "back-to-back" in loops else "failed attempts"
+
+
 def tails_lines(t: dict) -> list[str]:
     """The summary's tails as markdown list lines (over runs, not truths)."""
     out = ["", f"Tails over {t['runs']} runs ({t['runs_with_steps']} with step records):",
            f"- regret at the last episode, median / p90 / worst: {_dist(t['regret_last_episode'])}",
-           f"- longest run of back-to-back failures of one action, median / p90 / worst: "
+           f"- longest run of {_failure_run_words(t)} of one action, median / p90 / worst: "
            f"{_dist(t['longest_failure_run'])}",
            f"- runs that loop (>= {LOOP_RUN} such failures): {_pct(t['loop_share'])}"
            + (f" ({', '.join(t['loops'])})" if t["loops"] else ""),

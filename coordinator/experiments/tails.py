@@ -17,7 +17,7 @@ from sim_workers.properties import SIZES_VARIATION_SCALE
 # A run's tails (``run_tails``): the sweep's aims, in utility and in posterior std.
 TAIL_NEAR_OPTIMUM = 30.0          # "within 30 of the T*-optimum"
 TAIL_BY_EPISODE = 4               # ... by this episode (1-based)
-LOOP_RUN = 6                      # a run of >= 6 back-to-back failures of one action loops
+LOOP_RUN = 6                      # >= 6 failed attempts of one action, none of it succeeding between, loops
 TAIL_COVERAGE_Z = 2.0             # a true value within +- 2 posterior std is covered
 SHARP_RATIO = 1.5                 # posterior std <= 1.5 x the exact posterior's: sharp enough
 
@@ -73,23 +73,22 @@ def read_steps(path: Path) -> list[dict] | None:
 
 
 def longest_failure_run(records: Iterable[dict]) -> tuple[int, str | None, int | None]:
-    """(length, action, episode) of the longest run of back-to-back failed records of one
-    action string (one action on one object, e.g. ``pickup(r,b1,init)``) within an
-    episode. Any other record (a success, a failure of another action, a new episode)
-    ends a run; (0, None, None) without a failure."""
+    """(length, action, episode) of the longest run of failed attempts of one action string
+    (one action on one object, e.g. ``pickup(r,b1,init)``) within an episode: a success of
+    that action, or a new episode, ends its run; attempts of other actions between do not.
+    A stack that fails, drops its block, and is retried after a pickup that succeeds is
+    one action failing again and again (a loop), though no two failed records are
+    adjacent. (0, None, None) without a failure."""
     best, best_action, best_episode = 0, None, None
-    n, action, episode = 0, None, None
+    runs: dict[str, int] = {}
+    episode = None
     for rec in records:
         ep, act, ok = rec["episode"], rec["action"], bool(rec["success"])
-        if ok:
-            n, action = 0, None
-        elif act == action and ep == episode:
-            n += 1
-        else:
-            n, action = 1, act
-        episode = ep
-        if n > best:
-            best, best_action, best_episode = n, action, episode
+        if ep != episode:
+            runs, episode = {}, ep
+        runs[act] = 0 if ok else runs.get(act, 0) + 1
+        if runs[act] > best:
+            best, best_action, best_episode = runs[act], act, ep
     return best, best_action, best_episode
 
 
@@ -201,8 +200,8 @@ def summarize_tails(tails: Sequence[dict], labels: Sequence[str] | None = None) 
             "episode": worst_loop[0]["longest_failure_run_episode"]},
         "sharpness": None,
         "definitions": {
-            "loops": f"the longest run of back-to-back failures of one action (string) in an "
-                     f"episode is >= {LOOP_RUN}",
+            "loops": f"the longest run of failed attempts of one action (string) in an episode, "
+                     f"only a success of that action ending it, is >= {LOOP_RUN}",
             "never_improves": f"no episode after the first beats the first, and the first is not "
                               f"within {TAIL_NEAR_OPTIMUM:g} of the optimum",
             "regret_last_episode": "optimum's expected utility under T* - the last episode's utility",

@@ -464,13 +464,9 @@ def test_the_real_pose_is_the_candidate_predicted_to_succeed_most():
 
 # --------------------------------------------------------------------------- real physics
 def _longest_failure_run(records: list[dict]) -> int:
-    best = run = 0
-    last = None
-    for r in records:
-        run = run + 1 if (not r["success"] and r["action"] == last) else (0 if r["success"] else 1)
-        last = None if r["success"] else r["action"]
-        best = max(best, run)
-    return best
+    """The tails' measure (failed attempts of one action, only its success ending a run)."""
+    from coordinator.experiments.tails import longest_failure_run
+    return longest_failure_run(records)[0]
 
 
 @pytest.mark.slow

@@ -193,16 +193,23 @@ def test_a_failure_loop_is_counted_and_loops():
     assert split["longest_failure_run"] == 3
 
 
-def test_alternating_actions_reset_the_count():
+def test_a_failure_retried_between_other_actions_still_counts():
     from coordinator.experiments.tails import longest_failure_run, run_tails
 
     a, b = "pickup(r,b1,init)", "pickup(r,b2,init)"
+    # Two actions failing in turn: each fails ten times, none succeeding (a loop of two).
     alternating = _steps([(a, False), (b, False)] * 10)
     t = run_tails(alternating, [0, 0], 110.0, TRUTH, POST)
-    assert t["longest_failure_run"] == 1 and not t["loops"]
-    # a success of the same action, or any other record, ends a run
+    assert t["longest_failure_run"] == 10 and t["loops"]
+    # A stack that drops its block, picked up again each time (the pickup succeeds): the
+    # stack's run goes on across the pickups; the old back-to-back count read 1 here.
+    stack, pick = "stack(r,b3,tower)", "pickup(r,b3,rail)"
+    retried = longest_failure_run(_steps([(pick, True), (stack, False)] * 7))
+    assert retried == (7, stack, 0)
+    # Only a success of the same action ends its run.
     assert longest_failure_run(_steps([(a, False)] * 4 + [(a, True)] + [(a, False)] * 2))[0] == 4
-    assert longest_failure_run(_steps([(a, False)] * 4 + [(b, True)] + [(a, False)] * 5))[:2] == (5, a)
+    assert longest_failure_run(_steps([(a, False)] * 4 + [(b, True)] + [(a, False)] * 5))[:2] == (9, a)
+    assert longest_failure_run(_steps([(a, False)] * 3 + [(b, False)] + [(a, True)] + [(b, False)] * 2))[:2] == (3, a)
     assert longest_failure_run(_steps([(a, True)] * 4)) == (0, None, None)
     # no step records (a sweep from before they were kept): no failure figures, not a crash
     old = run_tails(None, [0, 0], 110.0, TRUTH, POST)
