@@ -12,7 +12,8 @@ from __future__ import annotations
 import numpy as np
 
 from ..configuration import Configuration, quat_from_yaw, quat_to_matrix
-from ..blocks.hand import grasp_yaw as _grasp_yaw, grip_height as _grip_height, in_hand as _in_hand
+from ..blocks.hand import FLOOR_Z, grasp_yaw as _grasp_yaw, grip_height as _grip_height, in_hand as _in_hand
+from ..blocks.hand import support_height
 from ..blocks.terms import block_index, parse_action  # noqa: F401  (used as state_mapping.*)
 from .spec import StackAndPushSpec
 
@@ -21,12 +22,10 @@ PICKUP_PLACES = (INIT, TABLE, RAIL)
 
 # Y^-1 thresholds (metres), wide enough for any size validate_sizes accepts (0.01..0.10).
 UPRIGHT_COS = float(np.cos(np.radians(10.0)))  # a face within 10 degrees of up
-BOTTOM_DX = 0.03        # tower bottom: this close to the start site along the rail
 BOTTOM_MAX_Z = 0.055    # ... and resting on the floor (centre below half the largest size)
 ON_DXY = 0.02           # B on B2: centres this close in the plane
 ON_DZ = (0.005, 0.105)  # ... and B's centre this much higher (half sizes summed)
 INIT_RADIUS = 0.02
-FLOOR_Z = 0.055         # a block with its centre below this lies on the floor
 
 
 def upright(quat: np.ndarray) -> bool:
@@ -42,23 +41,47 @@ def in_goal_area(spec: StackAndPushSpec, p: np.ndarray) -> bool:
     return in_rail(spec, p) and spec.goal_x[0] <= p[0] <= spec.goal_x[1]
 
 
+def site_reach(spec: StackAndPushSpec) -> float:
+    """How far along the rail from the start site a block on the floor is the tower's base.
+
+    A block of side s1 released at the site overlaps one of side s2 lying dx away when
+    |dx| < (s1 + s2) / 2, at most the prior's largest side. A block that close is where the
+    next stack lands whatever the sizes, so it is the tower's base: stacks go onto it and
+    the push starts behind it. A narrower window called a block 33 mm off the site
+    "rail", and with a second one 45 mm behind it every 60 mm stack at the site landed
+    across the two, failed and was tried again until `max_steps` (60 failed actions)."""
+    return float(spec.prior_high)
+
+
 def tower_chain(spec: StackAndPushSpec, config: Configuration, held: set[int] | frozenset = frozenset()) -> list[int]:
-    """Block indices of the tower, bottom first: the ``on`` chain rooted at the start site."""
+    """Block indices of the tower, bottom first: the ``on`` chain rooted at the start site
+    (its base a floor block within ``site_reach`` of the site)."""
     obj = config.objects
     free = [i for i in range(spec.n_blocks) if i not in held and upright(obj[i, 3:])]
-    bottoms = [i for i in free if in_rail(spec, obj[i, :3]) and abs(obj[i, 0] - spec.start_x) < BOTTOM_DX
-               and obj[i, 2] < BOTTOM_MAX_Z]
-    if not bottoms:
-        return []
-    chain = [min(bottoms, key=lambda i: (obj[i, 2], abs(obj[i, 0] - spec.start_x), i))]
-    while True:
-        top = obj[chain[-1]]
-        above = [i for i in free if i not in chain
-                 and np.linalg.norm(obj[i, :2] - top[:2]) < ON_DXY
-                 and ON_DZ[0] < obj[i, 2] - top[2] < ON_DZ[1]]
-        if not above:
-            return chain
-        chain.append(min(above, key=lambda i: (obj[i, 2], i)))   # nothing between
+    reach = site_reach(spec)
+
+    def on(i: int, j: int) -> bool:
+        return (np.linalg.norm(obj[i, :2] - obj[j, :2]) < ON_DXY
+                and ON_DZ[0] < obj[i, 2] - obj[j, 2] < ON_DZ[1])
+
+    bottoms = [i for i in free if in_rail(spec, obj[i, :3]) and abs(obj[i, 0] - spec.start_x) < reach
+               and obj[i, 2] < BOTTOM_MAX_Z and not any(on(i, j) for j in free if j != i)]
+    # The tallest tower standing in the window, the nearest to the site among equals: after
+    # a topple a tower may stand on a block beside a lone one nearer the site, and calling
+    # the lone one the base would make the standing tower's blocks "rail" blocks to pick off
+    # it. Not the lowest: heights differ only by the sizes and the readings' noise.
+    bottoms.sort(key=lambda i: (abs(obj[i, 0] - spec.start_x), obj[i, 2], i))
+    best: list[int] = []
+    for bottom in bottoms:
+        chain = [bottom]
+        while True:
+            above = [i for i in free if i not in chain and on(i, chain[-1])]
+            if not above:
+                break
+            chain.append(min(above, key=lambda i: (obj[i, 2], i)))   # nothing between
+        if len(chain) > len(best):
+            best = chain
+    return best
 
 
 def _held(spec: StackAndPushSpec, config: Configuration) -> int | None:
@@ -109,6 +132,23 @@ def symbolic_state(spec: StackAndPushSpec, config: Configuration) -> frozenset[s
     return frozenset(atoms)
 
 
+# The release opening over the believed side: a cube that turned in the fingers while
+# carried spans up to sqrt(2) = 1.414 sides between them; 1.5 clears that by 2.6-5 mm over
+# the prior (the pads' give, a slight tilt).
+RELEASE_RATIO = 1.5
+
+
+def release_opening(spec: StackAndPushSpec, s):
+    """How wide the fingers open to let go of a stacked block of believed side(s) `s`:
+    ``RELEASE_RATIO`` sides, at most ``max_opening``. The grasp's 1.15 sides left a 40 mm
+    block that had turned in the fingers wedged there: the same stack failed six times in a
+    row with the block still held. (Fully open, 90 mm, the fingers of a release onto a
+    tower of two came near enough to the blocks a particle world leaves out that the
+    world's outcome moved 0.25 mm from the full world's.)"""
+    return np.minimum(spec.max_opening, RELEASE_RATIO * np.asarray(s, dtype=np.float64)) if np.ndim(s) \
+        else min(spec.max_opening, RELEASE_RATIO * s)
+
+
 def _rear_half(s: float, quat: np.ndarray) -> float:
     """How far a cube of side s, turned by its folded yaw, reaches behind its centre."""
     y = _grasp_yaw(quat)
@@ -122,7 +162,7 @@ def action_pose(spec: StackAndPushSpec, sizes: np.ndarray, config: Configuration
     if name == "pickup":
         i = block_index(spec, args[1])
         s = sizes[i]
-        z = max(_grip_height(spec, s), 0.003)
+        z = max(support_height(obj[i, 2], s) + _grip_height(spec, s), 0.003)
         return np.array([obj[i, 0], obj[i, 1], z, _grasp_yaw(obj[i, 3:]), spec.open_ratio * s])
     _, chain = block_labels(spec, config)
     if name == "stack":
@@ -139,7 +179,7 @@ def action_pose(spec: StackAndPushSpec, sizes: np.ndarray, config: Configuration
             xy, yaw = spec.start_xy(), 0.0
         # The release height is the believed tower height: its error grows as h * (s_b - s_t).
         z = float(sum(sizes[j] for j in chain)) + spec.release_clearance + _grip_height(spec, s)
-        return np.array([xy[0], xy[1], z, yaw, spec.open_ratio * s])
+        return np.array([xy[0], xy[1], z, yaw, release_opening(spec, s)])
     # push(r,tower,start,goal): closed fingers behind the tower's rearmost (believed) face.
     if chain:
         rear = min(obj[j, 0] - _rear_half(sizes[j], obj[j, 3:]) for j in chain)
@@ -164,7 +204,7 @@ def action_poses(spec: StackAndPushSpec, sizes: np.ndarray, config: Configuratio
         i = block_index(spec, args[1])
         s = sizes[:, i]
         out[:, 0], out[:, 1], out[:, 3] = obj[i, 0], obj[i, 1], _grasp_yaw(obj[i, 3:])
-        out[:, 2] = np.maximum(_grip_height(spec, s), 0.003)
+        out[:, 2] = np.maximum(support_height(obj[i, 2], s) + _grip_height(spec, s), 0.003)
         out[:, 4] = spec.open_ratio * s
         return out
     _, chain = block_labels(spec, config)
@@ -181,7 +221,7 @@ def action_poses(spec: StackAndPushSpec, sizes: np.ndarray, config: Configuratio
             height = height + sizes[:, j]
         out[:, 0], out[:, 1], out[:, 3] = xy[0], xy[1], yaw
         out[:, 2] = height + spec.release_clearance + _grip_height(spec, s)
-        out[:, 4] = spec.open_ratio * s
+        out[:, 4] = release_opening(spec, s)
         return out
     if chain:
         rear = None
