@@ -138,6 +138,24 @@ def symbolic_state(spec: StackAndPushSpec, config: Configuration) -> frozenset[s
 RELEASE_RATIO = 1.5
 
 
+def rests_on_a_block(spec: StackAndPushSpec, objects: np.ndarray, i: int) -> bool:
+    """Whether block i lies on another block: one whose centre is within the prior's largest
+    side of i's in the plane (a block left across two counts) and lower by ``ON_DZ``."""
+    p = objects[i]
+    return any(j != i and np.linalg.norm(objects[j, :2] - p[:2]) < spec.prior_high
+               and ON_DZ[0] < p[2] - objects[j, 2] < ON_DZ[1] for j in range(spec.n_blocks))
+
+
+def _support(spec: StackAndPushSpec, objects: np.ndarray, i: int, s):
+    """What block i's grasp stands on: its believed bottom if it lies on another block
+    (``support_height``), else the floor. Not for any block seen above the floor: one
+    caught on the outside of the fingers rides along with a grasp aimed where it is seen,
+    and was chased 29 times in a row; a grasp at the floor's height drags it off."""
+    if rests_on_a_block(spec, objects, i):
+        return support_height(objects[i, 2], s)
+    return 0.0 if np.ndim(s) == 0 else np.zeros(np.shape(s))
+
+
 def release_opening(spec: StackAndPushSpec, s):
     """How wide the fingers open to let go of a stacked block of believed side(s) `s`:
     ``RELEASE_RATIO`` sides, at most ``max_opening``. The grasp's 1.15 sides left a 40 mm
@@ -162,7 +180,7 @@ def action_pose(spec: StackAndPushSpec, sizes: np.ndarray, config: Configuration
     if name == "pickup":
         i = block_index(spec, args[1])
         s = sizes[i]
-        z = max(support_height(obj[i, 2], s) + _grip_height(spec, s), 0.003)
+        z = max(_support(spec, obj, i, s) + _grip_height(spec, s), 0.003)
         return np.array([obj[i, 0], obj[i, 1], z, _grasp_yaw(obj[i, 3:]), spec.open_ratio * s])
     _, chain = block_labels(spec, config)
     if name == "stack":
@@ -204,7 +222,7 @@ def action_poses(spec: StackAndPushSpec, sizes: np.ndarray, config: Configuratio
         i = block_index(spec, args[1])
         s = sizes[:, i]
         out[:, 0], out[:, 1], out[:, 3] = obj[i, 0], obj[i, 1], _grasp_yaw(obj[i, 3:])
-        out[:, 2] = np.maximum(support_height(obj[i, 2], s) + _grip_height(spec, s), 0.003)
+        out[:, 2] = np.maximum(_support(spec, obj, i, s) + _grip_height(spec, s), 0.003)
         out[:, 4] = spec.open_ratio * s
         return out
     _, chain = block_labels(spec, config)

@@ -507,3 +507,10 @@ def test_a_block_left_on_another_is_grasped_at_its_believed_bottom(engine):
         world.reset(config, props)
         out = world.execute(domain.action_trajectory(config, action, domain.action_pose(props, config, action)), action)
     assert "is_holding(r,b3)" in out.state and "is_in(b5,rail)" in out.state, sorted(out.state)
+    # A block seen in the air with nothing under it (caught on the outside of the fingers)
+    # is grasped at the floor's height: a grasp aimed where it is seen only carries it along.
+    objects[4] = [0.40, 0.0, s / 2, *UPRIGHT]
+    caught = Configuration(config.robot, objects)
+    assert not sm.rests_on_a_block(SPEC, objects, 2)
+    np.testing.assert_array_equal(sm.action_pose(SPEC, np.full(N, s), caught, action)[2],
+                                  sm.action_pose(SPEC, np.full(N, s), base(s), "pickup(r,b3,init)")[2])
