@@ -58,24 +58,6 @@ def grip_depth(spec, size):
     return float(d) if d.ndim == 0 else d
 
 
-# A block whose centre is below this lies on the floor: the largest side Y accepts (0.10 m)
-# puts a floor block's centre at 0.05 m; 5 mm more for perception noise and a slight tilt.
-FLOOR_Z = 0.055
-
-
-def support_height(z: float, size):
-    """What a block whose centre is observed at height `z` rests on, for believed side(s)
-    `size` (a float or an array): the floor (0) below ``FLOOR_Z``, else its believed bottom,
-    z - size / 2. A block a failed stack or a topple left on another is grasped where it is;
-    a grasp at the floor's height only knocks it off, and is planned again every time.
-    (Stack-and-push's Y, whose worlds keep such a block where it was seen; the container's
-    worlds put every table block on the floor, so its Y grasps there.)"""
-    if np.ndim(size):
-        size = np.asarray(size, dtype=np.float64)
-        return np.zeros_like(size) if z < FLOOR_Z else z - 0.5 * size
-    return 0.0 if z < FLOOR_Z else z - 0.5 * size
-
-
 def grip_height(spec, size):
     """The fingertips' height above a gripped block's base, for believed side(s) `size`:
     the size less ``grip_depth`` (Y's grasp, release and held-block poses all stand on it)."""

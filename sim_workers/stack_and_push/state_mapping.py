@@ -12,8 +12,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..configuration import Configuration, quat_from_yaw, quat_to_matrix
-from ..blocks.hand import FLOOR_Z, grasp_yaw as _grasp_yaw, grip_height as _grip_height, in_hand as _in_hand
-from ..blocks.hand import support_height
+from ..blocks.hand import grasp_yaw as _grasp_yaw, grip_height as _grip_height, in_hand as _in_hand
 from ..blocks.terms import block_index, parse_action  # noqa: F401  (used as state_mapping.*)
 from .spec import StackAndPushSpec
 
@@ -26,6 +25,7 @@ BOTTOM_MAX_Z = 0.055    # ... and resting on the floor (centre below half the la
 ON_DXY = 0.02           # B on B2: centres this close in the plane
 ON_DZ = (0.005, 0.105)  # ... and B's centre this much higher (half sizes summed)
 INIT_RADIUS = 0.02
+FLOOR_Z = 0.055         # a block with its centre below this lies on the floor
 
 
 def upright(quat: np.ndarray) -> bool:
@@ -140,19 +140,26 @@ RELEASE_RATIO = 1.5
 
 def rests_on_a_block(spec: StackAndPushSpec, objects: np.ndarray, i: int) -> bool:
     """Whether block i lies on another block: one whose centre is within the prior's largest
-    side of i's in the plane (a block left across two counts) and lower by ``ON_DZ``."""
+    side of i's in the plane (a block left across two counts) and lower by more than
+    (low + high) / 4 of the prior (22.5 mm), up to ``ON_DZ``'s top. Two blocks on the floor
+    differ by at most (high - low) / 2 (15 mm), one on another by at least low (30 mm):
+    the bound is midway, 2.7 sigma of two 2 mm readings' difference from either."""
     p = objects[i]
+    least = 0.25 * (spec.prior_low + spec.prior_high)
     return any(j != i and np.linalg.norm(objects[j, :2] - p[:2]) < spec.prior_high
-               and ON_DZ[0] < p[2] - objects[j, 2] < ON_DZ[1] for j in range(spec.n_blocks))
+               and least < p[2] - objects[j, 2] < ON_DZ[1] for j in range(spec.n_blocks))
 
 
 def _support(spec: StackAndPushSpec, objects: np.ndarray, i: int, s):
-    """What block i's grasp stands on: its believed bottom if it lies on another block
-    (``support_height``), else the floor. Not for any block seen above the floor: one
-    caught on the outside of the fingers rides along with a grasp aimed where it is seen,
-    and was chased 29 times in a row; a grasp at the floor's height drags it off."""
+    """What block i's grasp stands on, for believed side(s) `s`: if it lies on another
+    block, its believed bottom (its observed centre less half its believed side: a block a
+    failed stack or a topple left there is grasped where it is, where a grasp at the
+    floor's height only knocked it off, planned again every time); else the floor. Not for
+    any block seen above the floor: one caught on the outside of the fingers rides along
+    with a grasp aimed where it is seen, and was chased 29 times in a row; a grasp at the
+    floor's height drags it off."""
     if rests_on_a_block(spec, objects, i):
-        return support_height(objects[i, 2], s)
+        return objects[i, 2] - 0.5 * (np.asarray(s, dtype=np.float64) if np.ndim(s) else s)
     return 0.0 if np.ndim(s) == 0 else np.zeros(np.shape(s))
 
 
@@ -299,7 +306,7 @@ def place_for_sizes(spec: StackAndPushSpec, config: Configuration, sizes: np.nda
         elif label == GOAL:
             xy = spec.delivered_slot(i)
             objects[i] = [xy[0], xy[1], s / 2, 0, 0, 0, 1]
-        elif label != TOWER and upright(p[3:]) and p[2] < FLOOR_Z:
+        elif label != TOWER and upright(p[3:]) and p[2] < FLOOR_Z and not rests_on_a_block(spec, config.objects, i):
             objects[i] = np.concatenate([[p[0], p[1], s / 2], quat_from_yaw(_grasp_yaw(p[3:]))])
     return Configuration(robot, objects)
 

@@ -507,6 +507,20 @@ def test_a_block_left_on_another_is_grasped_at_its_believed_bottom(engine):
         world.reset(config, props)
         out = world.execute(domain.action_trajectory(config, action, domain.action_pose(props, config, action)), action)
     assert "is_holding(r,b3)" in out.state and "is_in(b5,rail)" in out.state, sorted(out.state)
+    # Small blocks too (a 30 mm block's centre on another is 45 mm up, below the height
+    # under which a block counts as lying on the floor elsewhere in Y^-1).
+    small = objects.copy()
+    small[4, 2], small[2, 2] = 0.015, 0.045
+    pose30 = sm.action_pose(SPEC, np.full(N, 0.030), Configuration(config.robot, small), action)
+    assert pose30[2] == pytest.approx(0.030 + 0.030 - grip_depth(SPEC, 0.030))
+    # ... and the worlds keep it there (re-grounded onto the floor it would sit inside b5).
+    placed = sm.place_for_sizes(SPEC, Configuration(config.robot, small), np.full(N, 0.030))
+    np.testing.assert_array_equal(placed.objects[2, :3], small[2, :3])
+    # Two blocks side by side on the floor, 60 and 30 mm (centres 15 mm apart in height,
+    # and 2 mm of perception noise): neither lies on the other.
+    side = objects.copy()
+    side[4], side[2] = [0.20, 0.0, 0.030, *UPRIGHT], [0.245, 0.0, 0.017, *UPRIGHT]
+    assert not sm.rests_on_a_block(SPEC, side, 4) and not sm.rests_on_a_block(SPEC, side, 2)
     # A block seen in the air with nothing under it (caught on the outside of the fingers)
     # is grasped at the floor's height: a grasp aimed where it is seen only carries it along.
     objects[4] = [0.40, 0.0, s / 2, *UPRIGHT]
