@@ -138,16 +138,24 @@ def symbolic_state(spec: StackAndPushSpec, config: Configuration) -> frozenset[s
 RELEASE_RATIO = 1.5
 
 
+def lying_on_blocks(spec: StackAndPushSpec, objects: np.ndarray) -> np.ndarray:
+    """(n_blocks,) whether each block lies on another: one whose centre is within the
+    prior's largest side of its own in the plane (a block left across two counts) and
+    lower by more than (low + high) / 4 of the prior (22.5 mm), up to ``ON_DZ``'s top. Two
+    blocks on the floor differ by at most (high - low) / 2 (15 mm), one on another by at
+    least low (30 mm): the bound is midway, 2.7 sigma of two 2 mm readings' difference
+    from either. One pass over the pairs, as a particle's re-grounding asks of every block."""
+    p = objects[:spec.n_blocks]
+    near = np.linalg.norm(p[:, None, :2] - p[None, :, :2], axis=-1) < spec.prior_high
+    dz = p[:, None, 2] - p[None, :, 2]
+    on = near & (dz > 0.25 * (spec.prior_low + spec.prior_high)) & (dz < ON_DZ[1])
+    np.fill_diagonal(on, False)
+    return on.any(axis=1)
+
+
 def rests_on_a_block(spec: StackAndPushSpec, objects: np.ndarray, i: int) -> bool:
-    """Whether block i lies on another block: one whose centre is within the prior's largest
-    side of i's in the plane (a block left across two counts) and lower by more than
-    (low + high) / 4 of the prior (22.5 mm), up to ``ON_DZ``'s top. Two blocks on the floor
-    differ by at most (high - low) / 2 (15 mm), one on another by at least low (30 mm):
-    the bound is midway, 2.7 sigma of two 2 mm readings' difference from either."""
-    p = objects[i]
-    least = 0.25 * (spec.prior_low + spec.prior_high)
-    return any(j != i and np.linalg.norm(objects[j, :2] - p[:2]) < spec.prior_high
-               and least < p[2] - objects[j, 2] < ON_DZ[1] for j in range(spec.n_blocks))
+    """Whether block i lies on another (``lying_on_blocks``)."""
+    return bool(lying_on_blocks(spec, objects)[i])
 
 
 def _support(spec: StackAndPushSpec, objects: np.ndarray, i: int, s):
@@ -289,6 +297,7 @@ def place_for_sizes(spec: StackAndPushSpec, config: Configuration, sizes: np.nda
     resting on another) keeps its observed pose: its geometry says nothing about L.
     """
     labels, chain = block_labels(spec, config)
+    on_blocks = lying_on_blocks(spec, config.objects)
     objects = config.objects.copy()
     robot = config.robot.copy()
     z = 0.0
@@ -306,7 +315,7 @@ def place_for_sizes(spec: StackAndPushSpec, config: Configuration, sizes: np.nda
         elif label == GOAL:
             xy = spec.delivered_slot(i)
             objects[i] = [xy[0], xy[1], s / 2, 0, 0, 0, 1]
-        elif label != TOWER and upright(p[3:]) and p[2] < FLOOR_Z and not rests_on_a_block(spec, config.objects, i):
+        elif label != TOWER and upright(p[3:]) and p[2] < FLOOR_Z and not on_blocks[i]:
             objects[i] = np.concatenate([[p[0], p[1], s / 2], quat_from_yaw(_grasp_yaw(p[3:]))])
     return Configuration(robot, objects)
 
