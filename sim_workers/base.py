@@ -205,6 +205,13 @@ class PhysicsDomain(abc.ABC):
         that cannot differ (nothing within reach); default: none."""
         return []
 
+    def take_first(self, config: Configuration) -> tuple[str, ...]:
+        """Objects that rest on others in `config` (leaning on them, lying on them): a plan
+        takes them before the rest, since the objects under them cannot be taken while they
+        are there. The session hands them to the task half's planner as ``first``, so a
+        domain that returns any has a planner that takes that keyword; default: none."""
+        return ()
+
     def misalignment(self, config: Configuration, action: str) -> tuple[int, np.ndarray] | None:
         """Where an error in perception changes the action's outcome: the row of
         ``config.objects`` whose perceived planar position the action is aimed at, and the

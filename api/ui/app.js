@@ -286,8 +286,9 @@ async function taskPage(id) {
     if (points.some((p) => p.episode === r.episode)) return;
     points.push({ episode: r.episode, utility: r.utility, size_mean: r.posterior.size_mean, size_std: r.posterior.size_std });
     points.sort((a, b) => a.episode - b.episode);
-    drawCurve();
-    guarded(refreshAll)();
+    // The point once the belief and T of its episode are drawn: the page never shows an
+    // episode beside the belief from before it (a slow fetch did, on a loaded machine).
+    guarded(async () => { try { await refreshAll(); } finally { drawCurve(); } })();
   });
   source.addEventListener("status", (ev) => {
     const t = JSON.parse(ev.data);

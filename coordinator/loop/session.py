@@ -277,7 +277,11 @@ class Session:
         if self.agent.planner == "satisficing":
             plan = self.task.satisficing(self.state, rng=self.rng, transition=T, costs=costs)
         else:
-            plan = self.task.plan(self.state, T, costs)
+            # Objects resting on others go first (the physics half's `take_first`); passed
+            # only when there are any, so a task half without the keyword still plans.
+            take_first = getattr(self.domain, "take_first", None)   # (a half registered, not derived)
+            first = take_first(self.observation.configuration) if take_first else ()
+            plan = self.task.plan(self.state, T, costs, **({"first": first} if first else {}))
         self.plan = list(plan.actions)
         self.stats.plans.append(list(plan.loads))
         self.stats.planning_s += time.perf_counter() - t0

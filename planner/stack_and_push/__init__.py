@@ -89,15 +89,18 @@ def expected_utility(state: Iterable[str], actions: Sequence[str], transition: M
 
 # --------------------------------------------------------------------------- planning
 
-def _problem(state: frozenset[str]) -> tp.Problem:
+def _problem(state: frozenset[str], first: Sequence[str] = ()) -> tp.Problem:
     place = {}
     for atom in state:
         if atom.startswith("is_in("):
             _, (b, where) = parse_term(atom)
             if where in PICKUP_PLACES:
                 place[b] = where
-    # Blocks off their supply slot first (a fallen block blocks the rail), then by index.
-    order = sorted(place, key=lambda b: (place[b] == "init", block_index(b)))
+    # Blocks off their supply slot first (a fallen block blocks the rail), of those the ones
+    # resting on others (`first`: a block under one cannot be taken while it is there),
+    # then by index.
+    on_others = frozenset(first)
+    order = sorted(place, key=lambda b: (place[b] == "init", b not in on_others, block_index(b)))
     return tp.Problem(tuple(order), place, held_block(state), len(tower(state)), False,
                        return_push=False)
 
@@ -118,14 +121,16 @@ def _name_actions(problem: tp.Problem, steps: Sequence[str]) -> tuple[str, ...]:
 
 def plan(state: Iterable[str], transition: Mapping, costs: Mapping | None = None, *,
          block_classes: Mapping[str, str] | None = None, max_steps: int | None = None,
-         time_limit: float = tp.DEFAULT_TIME_LIMIT_S) -> Plan:
+         time_limit: float = tp.DEFAULT_TIME_LIMIT_S, first: Sequence[str] = ()) -> Plan:
     """The plan of maximum expected utility from the state under T (``{pickup, stack[N],
-    push[N]}``) and the costs, proven optimal unless the time limit cut the search."""
+    push[N]}``) and the costs, proven optimal unless the time limit cut the search. `first`:
+    blocks resting on others, picked before the other waiting blocks (the physics half's
+    ``take_first``)."""
     started = time.perf_counter()
     start = _checked_state(state)
     classes, model = _model(start, transition, costs, block_classes)
     tp.check_limits(max_steps, time_limit)
-    problem = _problem(start)
+    problem = _problem(start, first)
     if problem.units == 0:
         return Plan((), (), 0.0, True, (time.perf_counter() - started) * 1e3)
     shortest = problem.horizon(1)
@@ -242,9 +247,9 @@ class StackAndPushTask(TaskDomain):
 
     def plan(self, state: Iterable[str], transition: Mapping, costs: Mapping | None = None, *,
              block_classes: Mapping[str, str] | None = None, max_steps: int | None = None,
-             time_limit: float = tp.DEFAULT_TIME_LIMIT_S) -> Plan:
+             time_limit: float = tp.DEFAULT_TIME_LIMIT_S, first: Sequence[str] = ()) -> Plan:
         return plan(state, transition, costs, block_classes=block_classes,
-                    max_steps=max_steps, time_limit=time_limit)
+                    max_steps=max_steps, time_limit=time_limit, first=first)
 
     def satisficing(self, state: Iterable[str], *, rng: np.random.Generator,
                     transition: Mapping | None = None, costs: Mapping | None = None) -> Plan:

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..configuration import Configuration, face_yaw, rotate_z
+from ..configuration import Configuration, face_yaw, quat_to_matrix, rotate_z
 
 
 # The block domains' option ranges (``PhysicsDomain.option_ranges``): wide around the
@@ -64,10 +64,27 @@ def grip_height(spec, size):
     return size - grip_depth(spec, size)
 
 
+UPRIGHT_COS = float(np.cos(np.radians(10.0)))  # a face within 10 degrees of up
+
+
+def upright(quat: np.ndarray) -> bool:
+    """A cube rests on a face: one body axis is within 10 degrees of vertical."""
+    return bool(np.max(np.abs(quat_to_matrix(quat)[2, :])) > UPRIGHT_COS)
+
+
 def grasp_yaw(quat: np.ndarray) -> float:
-    """The block's yaw folded into [-pi/4, pi/4): a cube looks the same every quarter turn."""
+    """The hand's yaw for a grasp of a block turned by `quat`. A block resting on a face looks
+    the same every quarter turn: its yaw folded into [-pi/4, pi/4). A block resting on an
+    edge (leaning on another) has one pair of vertical faces only, those normal to its most
+    horizontal body axis, so the fingers close along that axis (the hand's y at yaw 0), the
+    yaw folded into [-pi/2, pi/2) (the hand is the same a half turn round). Folded a quarter
+    turn instead, the fingers closed across the tilted faces of a block leaning 40-90 degrees
+    on its neighbour and missed it in every world; along its level axis they hold it in
+    every world (docs/RESULTS.md, "A block leaning on the one the plan picks")."""
     yaw = face_yaw(quat)
-    return float((yaw + np.pi / 4) % (np.pi / 2) - np.pi / 4)
+    if upright(quat):
+        return float((yaw + np.pi / 4) % (np.pi / 2) - np.pi / 4)
+    return float(yaw % np.pi - np.pi / 2)
 
 
 def closing_axis(quat: np.ndarray) -> np.ndarray:

@@ -180,6 +180,16 @@ class StackAndPushDomain(PhysicsDomain):
         largest = float(np.max(self._split_rows(rows)["size"])) if len(rows) else 0.0
         return grasp_alternatives(self.spec, config, action, pose, largest, 0)
 
+    def take_first(self, config: Configuration) -> tuple[str, ...]:
+        """Blocks resting on others: one lying on another (``state_mapping.lying_on_blocks``)
+        or standing on an edge, which a cube does only leaning on a neighbour. The tower's
+        blocks and the held one are not waiting to be picked and are left out."""
+        labels, _ = state_mapping.block_labels(self.spec, config)
+        on = state_mapping.lying_on_blocks(self.spec, config.objects)
+        return tuple(self.spec.block_names[i] for i, label in enumerate(labels)
+                     if label in state_mapping.PICKUP_PLACES
+                     and (on[i] or not state_mapping.upright(config.objects[i, 3:])))
+
     def action_poses(self, rows: np.ndarray, config: Configuration, action: str) -> np.ndarray:
         """Y for every row of L at once ((N, D) -> (N, 5), or (N, 6) with mass in Y), bit
         for bit the per-row `action_pose` of `props_from_row`."""

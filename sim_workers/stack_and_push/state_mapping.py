@@ -11,7 +11,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..configuration import Configuration, quat_from_yaw, quat_to_matrix
+from ..configuration import Configuration, quat_from_yaw
+from ..blocks.hand import UPRIGHT_COS, upright  # noqa: F401  (used as state_mapping.*)
 from ..blocks.hand import grasp_yaw as _grasp_yaw, grip_height as _grip_height, in_hand as _in_hand
 from ..blocks.terms import block_index, parse_action  # noqa: F401  (used as state_mapping.*)
 from .spec import StackAndPushSpec
@@ -20,17 +21,11 @@ HELD, TOWER, GOAL, INIT, RAIL, TABLE = "held", "tower", "goal", "init", "rail", 
 PICKUP_PLACES = (INIT, TABLE, RAIL)
 
 # Y^-1 thresholds (metres), wide enough for any size validate_sizes accepts (0.01..0.10).
-UPRIGHT_COS = float(np.cos(np.radians(10.0)))  # a face within 10 degrees of up
 BOTTOM_MAX_Z = 0.055    # ... and resting on the floor (centre below half the largest size)
 ON_DXY = 0.02           # B on B2: centres this close in the plane
 ON_DZ = (0.005, 0.105)  # ... and B's centre this much higher (half sizes summed)
 INIT_RADIUS = 0.02
 FLOOR_Z = 0.055         # a block with its centre below this lies on the floor
-
-
-def upright(quat: np.ndarray) -> bool:
-    """A cube rests on a face: one body axis is within 10 degrees of vertical."""
-    return bool(np.max(np.abs(quat_to_matrix(quat)[2, :])) > UPRIGHT_COS)
 
 
 def in_rail(spec: StackAndPushSpec, p: np.ndarray) -> bool:
