@@ -160,7 +160,9 @@ def test_dashboard_sign_in_submit_and_watch_a_task_live(ui_server, browser, tmp_
     assert done["t_rows"] != first["t_rows"] and done["weights"] != first["weights"]
     assert {"e000-end", "e001-end", "e002-end"} <= set(done["frames"]), done["frames"]
     assert any("-s" in f for f in done["frames"]), done["frames"]      # a failed action's strip
-    assert done["frames_loaded"] == len(done["frames"])
+    # ... and every picture loads (the last ones may still be loading when the status lands)
+    _wait(browser, lambda d: (s := _snapshot(d))["frames_loaded"] == len(s["frames"]) == len(done["frames"]),
+          60, "every picture loaded")
     loads = _css(browser, "#loads")[0].text
     assert loads.startswith("loads per trip: [")
     assert _css(browser, "#nodes tbody tr")
