@@ -84,7 +84,11 @@ def face_yaw(quat: np.ndarray) -> float:
     A block that fell on its side has its x axis vertical; the x axis' heading is then
     meaningless, but the axes lying flat still say how the faces are turned.
     """
-    R = quat_to_matrix(quat)
+    return level_axis_heading(quat_to_matrix(quat))
+
+
+def level_axis_heading(R: np.ndarray) -> float:
+    """``face_yaw`` of a rotation matrix already computed."""
     j = int(np.argmin(np.abs(R[2, :])))
     return float(np.arctan2(R[1, j], R[0, j]))
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..configuration import Configuration, face_yaw, quat_to_matrix, rotate_z
+from ..configuration import Configuration, level_axis_heading, quat_to_matrix, rotate_z
 
 
 # The block domains' option ranges (``PhysicsDomain.option_ranges``): wide around the
@@ -81,8 +81,9 @@ def grasp_yaw(quat: np.ndarray) -> float:
     turn instead, the fingers closed across the tilted faces of a block leaning 40-90 degrees
     on its neighbour and missed it in every world; along its level axis they hold it in
     every world (docs/RESULTS.md, "A block leaning on the one the plan picks")."""
-    yaw = face_yaw(quat)
-    if upright(quat):
+    R = quat_to_matrix(quat)          # once: Y^-1 asks this of every block of every particle
+    yaw = level_axis_heading(R)
+    if np.max(np.abs(R[2, :])) > UPRIGHT_COS:         # upright(quat)
         return float((yaw + np.pi / 4) % (np.pi / 2) - np.pi / 4)
     return float(yaw % np.pi - np.pi / 2)
 
