@@ -73,22 +73,39 @@ def neutral_cwd(tmp_path_factory) -> Path:
 
 
 # -- two workers (pytest-xdist), one Ray ------------------------------------------------
-# The fast loop runs on two pytest-xdist workers (`-n 2`, with pyproject's --dist loadgroup). Every
-# module whose tests use the in-process Ray (the `ray_cluster` fixture) goes to one group,
-# run by one worker, so the session still has one local cluster; every other module is a
-# group of its own (its module-scoped fixtures are built once), the installed-product
-# modules one group (they share the wheel). The Ray group is scheduled first: it is the
-# longest unit, and the other worker fills the time with servers, installs and the rest.
+# The suite runs on two pytest-xdist workers (`-n 2`, with pyproject's --dist loadgroup). A
+# group's tests run on one worker. Every module whose tests use the in-process Ray (the
+# `ray_cluster` fixture) is one group, so the session still has one local cluster; the
+# installed-product modules are one group (they share the wheel); any other module whose
+# tests share a fixture wider than a test (module- or session-scoped: a server, a venv, a
+# run) is a group of its own, so that the fixture is built once. The remaining tests share
+# nothing and are scheduled one by one, which keeps the two workers' ends close. The Ray
+# group is scheduled first: it is the longest unit.
 RAY_GROUP = "ray"
 
 
-def _group(item: pytest.Item, ray_modules: set[str]) -> str:
+def _shares_a_fixture(item: pytest.Item) -> bool:
+    """Whether the test uses one of the suite's fixtures that outlives a test (pytest's
+    own, such as tmp_path_factory, cost nothing to have on both workers)."""
+    info = getattr(item, "_fixtureinfo", None)
+    if info is None:
+        return True
+    return any(d.scope != "function" and d.baseid
+               for defs in info.name2fixturedefs.values() for d in defs)
+
+
+def _group(item: pytest.Item, ray_modules: set[str]) -> str | None:
     module = item.nodeid.split("::")[0]
     if module in ray_modules:
         return RAY_GROUP
     if module.startswith("tests/installed/"):
         return "installed"
-    return module
+    return module if _shares_a_fixture(item) else None
+
+
+def _group_of(item: pytest.Item) -> str | None:
+    mark = item.get_closest_marker("xdist_group")
+    return mark.args[0] if mark is not None else None
 
 
 @pytest.hookimpl(tryfirst=True)
@@ -96,9 +113,11 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
     ray_modules = {it.nodeid.split("::")[0] for it in items if "ray_cluster" in it.fixturenames}
     for item in items:
         if item.get_closest_marker("xdist_group") is None:
-            item.add_marker(pytest.mark.xdist_group(_group(item, ray_modules)))
+            group = _group(item, ray_modules)
+            if group is not None:
+                item.add_marker(pytest.mark.xdist_group(group))
     if hasattr(config, "workerinput"):          # a pytest-xdist worker: the longest unit first
-        items.sort(key=lambda it: it.get_closest_marker("xdist_group").args[0] != RAY_GROUP)
+        items.sort(key=lambda it: _group_of(it) != RAY_GROUP)
 
 
 def _ray_is_up() -> bool:

@@ -10,8 +10,30 @@ from __future__ import annotations
 import pytest
 
 
-def test_a_test_knows_its_group_on_a_worker(request):
+def _on_a_worker(request) -> None:
     if not hasattr(request.config, "workerinput") or not request.config.getvalue("loadgroup"):
         pytest.skip("in one process: no pytest-xdist worker, nothing to group")
+
+
+@pytest.mark.xdist_group("tests/test_xdist_groups.py")
+def test_a_test_knows_its_group_on_a_worker(request):
+    _on_a_worker(request)
     here = "tests/test_xdist_groups.py"
     assert request.node.nodeid == f"{here}::test_a_test_knows_its_group_on_a_worker@{here}", request.node.nodeid
+
+
+@pytest.fixture(scope="module")
+def shared() -> list:
+    return []
+
+
+def test_a_test_sharing_a_module_fixture_runs_in_its_module_s_group(request, shared):
+    _on_a_worker(request)
+    here = "tests/test_xdist_groups.py"
+    assert request.node.nodeid.endswith(f"@{here}"), request.node.nodeid
+
+
+def test_a_test_that_shares_nothing_is_a_unit_of_its_own(request, tmp_path):
+    # scheduled by itself, so that the two workers' ends stay close (tests/conftest.py)
+    _on_a_worker(request)
+    assert "@" not in request.node.nodeid, request.node.nodeid

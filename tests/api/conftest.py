@@ -16,6 +16,9 @@ import pytest
 
 TOKEN = "test-token-0123456789"
 REPO = Path(__file__).resolve().parents[2]
+# One TLS context for every test client: httpx builds one per client otherwise (17 ms of
+# loading the CA store each, and the servers here are plain HTTP on loopback).
+TLS = httpx.create_ssl_context()
 
 
 def tmoc() -> list[str]:
@@ -66,7 +69,7 @@ class Server:
             if self.proc.poll() is not None:
                 raise RuntimeError(f"server exited with {self.proc.returncode}:\n{self.log()}")
             try:
-                if httpx.get(f"{self.base}/health", timeout=2).status_code == 200:
+                if httpx.get(f"{self.base}/health", timeout=2, verify=TLS).status_code == 200:
                     return self
             except httpx.TransportError:
                 pass
@@ -107,6 +110,7 @@ class Server:
         self._reap_group()
 
     def client(self, **kw) -> httpx.Client:
+        kw.setdefault("verify", TLS)
         return httpx.Client(base_url=self.base, headers=self.headers, timeout=kw.pop("timeout", 60), **kw)
 
 

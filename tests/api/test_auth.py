@@ -11,7 +11,7 @@ import pytest
 from coordinator.cli import UsageError
 from coordinator.commands import serve
 
-from .conftest import TOKEN, free_port, tmoc
+from .conftest import TLS, TOKEN, free_port, tmoc
 
 PROTECTED = [("GET", "/v1/tasks"), ("POST", "/v1/tasks"), ("GET", "/v1/tasks/t_1"),
              ("DELETE", "/v1/tasks/t_1"), ("GET", "/v1/tasks/t_1/events"), ("GET", "/v1/tasks/t_1/belief"),
@@ -24,7 +24,7 @@ def test_every_route_but_health_needs_the_token(server, method, path):
     # Each route from its own loopback address: a wrong credential counts against its
     # address (issue 38), and 36 of them from the suite's 127.0.0.1 would throttle it.
     address = f"127.0.0.{20 + PROTECTED.index((method, path))}"
-    with httpx.Client(transport=httpx.HTTPTransport(local_address=address), timeout=30) as c:
+    with httpx.Client(transport=httpx.HTTPTransport(local_address=address, verify=TLS), timeout=30) as c:
         for headers in ({}, {"Authorization": "Bearer wrong"}, {"Authorization": f"Basic {TOKEN}"},
                         {"Authorization": TOKEN}):
             r = c.request(method, server.base + path, headers=headers, json={} if method == "POST" else None)

@@ -71,27 +71,13 @@ def tree_copy(tmp_path_factory) -> Path:
     return root
 
 
-@pytest.mark.parametrize("module, added, message", [
+WRONG_WAY = [
     ("planner/container/symbolic.py", "import coordinator", "planner is not allowed to import coordinator"),
     ("coordinator/loop/session.py", "import api", "coordinator is not allowed to import api"),
     ("sim_workers/probe.py", "from planner import symbolic", "sim_workers is not allowed to import planner"),
     ("planner/container/__init__.py", "import sim_workers.domains", "planner is not allowed to import sim_workers"),
-])
-def test_an_arrow_the_wrong_way_breaks_the_contract(tree_copy, tmp_path, module, added, message):
-    """One import against the layering, appended to a copy: the contract is reported
-    broken, naming the layers and the importing module."""
-    root = tmp_path / "tree"
-    shutil.copytree(tree_copy, root)
-    path = root / module
-    path.write_text(path.read_text() + f"\n{added}  # against the layering\n")
-    code, out, origins = _lint(root, str(root))
-    assert origins["coordinator"] == (root / "coordinator").resolve(), out
-    importer = module[:-3].replace("/", ".").removesuffix(".__init__")
-    assert code == 1 and f"{CONTRACT} BROKEN" in out, out
-    assert message in out and f"- {importer} -> " in out, out
-
-
-@pytest.mark.parametrize("module, added, contract", [
+]
+ACROSS_THE_KIT = [
     ("sim_workers/stack_and_push/scene.py", "from sim_workers.container import scene",
      "a domain imports no other domain"),
     ("planner/stack_and_push/__init__.py", "from planner.container import model",
@@ -99,15 +85,42 @@ def test_an_arrow_the_wrong_way_breaks_the_contract(tree_copy, tmp_path, module,
     ("coordinator/loop/session.py", "from planner.container import TASK", "the service imports no domain"),
     ("sim_workers/probe.py", "from sim_workers.container import probes", "the service imports no domain"),
     ("api/task_worker.py", "from sim_workers.engines import installed", "api imports neither sim_workers nor planner"),
-])
-def test_a_domain_import_across_the_kit_breaks_its_contract(tree_copy, tmp_path, module, added, contract):
-    """The built-in domains are siblings over the shared kits, and the loop, the API and the
-    generic physics reach a domain only through the registry (issue 26): an import against
-    either is reported, and the layering still holds."""
+]
+
+
+def _with_imports(tree_copy: Path, tmp_path: Path, arrows: list[tuple[str, str, str]], why: str) -> Path:
+    """A copy of the tree with each arrow's import appended to its module."""
     root = tmp_path / "tree"
     shutil.copytree(tree_copy, root)
-    path = root / module
-    path.write_text(path.read_text() + f"\n{added}  # against the domain kit\n")
+    for module, added, _ in arrows:
+        path = root / module
+        path.write_text(path.read_text() + f"\n{added}  # {why}\n")
+    return root
+
+
+def _importer(module: str) -> str:
+    return module[:-3].replace("/", ".").removesuffix(".__init__")
+
+
+def test_an_arrow_the_wrong_way_breaks_the_contract(tree_copy, tmp_path):
+    """Imports against the layering, appended to a copy (one linter run for all of them:
+    it reports every illegal import): the contract is reported broken, naming the layers
+    and each importing module."""
+    root = _with_imports(tree_copy, tmp_path, WRONG_WAY, "against the layering")
+    code, out, origins = _lint(root, str(root))
+    assert origins["coordinator"] == (root / "coordinator").resolve(), out
+    assert code == 1 and f"{CONTRACT} BROKEN" in out, out
+    for module, _, message in WRONG_WAY:
+        assert message in out and f"- {_importer(module)} -> " in out, (module, out)
+
+
+def test_a_domain_import_across_the_kit_breaks_its_contract(tree_copy, tmp_path):
+    """The built-in domains are siblings over the shared kits, and the loop, the API and the
+    generic physics reach a domain only through the registry (issue 26): each import
+    against either is reported, and the layering still holds."""
+    root = _with_imports(tree_copy, tmp_path, ACROSS_THE_KIT, "against the domain kit")
     code, out, _ = _lint(root, str(root))
-    assert code == 1 and f"{contract} BROKEN" in out, out
-    assert f"{CONTRACT} KEPT" in out, out
+    assert code == 1 and f"{CONTRACT} KEPT" in out, out
+    for module, added, contract in ACROSS_THE_KIT:
+        assert f"{contract} BROKEN" in out, (contract, out)
+        assert f"{_importer(module)} -> {added.split()[1]}" in out, (module, out)

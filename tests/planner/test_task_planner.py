@@ -43,45 +43,68 @@ def pushed_until_delivered(p: float, load: int, rebuild: float, costs: dict) -> 
     return -costs["push"] / q - failures * (costs["fail"] + rebuild) + costs["deliver"] * load
 
 
+def trip_value(load: int, n_stacks: int, T: dict, costs: dict, mean_pick: float) -> float:
+    """One trip: n_stacks stacks onto a container already holding `load` blocks, then its
+    push until delivered (a failed push rebuilds the trip: the container brought back, its
+    blocks picked up at `mean_pick` each and stacked from 0)."""
+    fail = costs["fail"]
+    value = 0.0
+    for _ in range(n_stacks):
+        value += -attempt(costs["stack"], fail, T["stack"][load])
+        load += 1
+    rebuild = costs["push"] + load * mean_pick + sum(
+        attempt(costs["stack"], fail, T["stack"][j]) for j in range(load))
+    return value + pushed_until_delivered(T["push"][load - 1], load, rebuild, costs)
+
+
 def split_value(first_load: int, stacks: list[int], waiting: int, at_goal: bool,
-                T: dict, costs: dict = COSTS, mean_pick: float | None = None) -> float:
+                T: dict, costs: dict = COSTS, mean_pick: float | None = None, trip=None) -> float:
     """The expected-utility formula for a plan given by the stacks of each trip, written out
     independently of the planner: the first trip starts with first_load blocks loaded. A
     failed push's trip is rebuilt: the container brought back, its blocks picked up (at
-    `mean_pick` each, by default the one class's expected pickup) and stacked from 0."""
+    `mean_pick` each, by default the one class's expected pickup) and stacked from 0.
+    `trip(load, n_stacks)` may stand in for `trip_value` (a memo of it)."""
     fail = costs["fail"]
     p_pick = T["pickup"] if not isinstance(T["pickup"], dict) else None
     if mean_pick is None:
         mean_pick = attempt(costs["pickup"], fail, p_pick)
+    if trip is None:
+        def trip(load, n):
+            return trip_value(load, n, T, costs, mean_pick)
     value = 0.0 if p_pick is None else waiting * -attempt(costs["pickup"], fail, p_pick)
     returns = len(stacks) - 1 + at_goal
     value -= returns * costs["push"]
-    for trip, n_stacks in enumerate(stacks):
-        load = first_load if trip == 0 else 0
-        for _ in range(n_stacks):
-            value += -attempt(costs["stack"], fail, T["stack"][load])
-            load += 1
-        rebuild = costs["push"] + load * mean_pick + sum(
-            attempt(costs["stack"], fail, T["stack"][j]) for j in range(load))
-        value += pushed_until_delivered(T["push"][load - 1], load, rebuild, costs)
+    for i, n_stacks in enumerate(stacks):
+        value += trip(first_load if i == 0 else 0, n_stacks)
     return value
 
 
 def best_split(T: dict, waiting: int, held: bool = False, preloaded: int = 0,
                at_goal: bool = False, costs: dict = COSTS, max_trips: int | None = None,
                mean_pick: float | None = None):
-    """Best value over every way to split the remaining work into trips."""
+    """Best value over every way to split the remaining work into trips (every split is
+    valued; a trip's value depends only on its first load and its stacks, so it is memoised:
+    16 blocks are 2**15 splits)."""
     stacks = waiting + held
     candidates = []
     for parts in compositions(stacks) if stacks else [[0]]:
         candidates.append(parts)
         if preloaded and not held and stacks:      # the loaded container may leave at once
             candidates.append([0] + parts)
+    if mean_pick is None and not isinstance(T["pickup"], dict):
+        mean_pick = attempt(costs["pickup"], costs["fail"], T["pickup"])
+    memo: dict[tuple[int, int], float] = {}
+
+    def trip(load: int, n: int) -> float:
+        if (load, n) not in memo:
+            memo[(load, n)] = trip_value(load, n, T, costs, mean_pick)
+        return memo[(load, n)]
+
     best = None
     for parts in candidates:
         if max_trips is not None and len(parts) > max_trips:
             continue
-        value = split_value(preloaded, parts, waiting, at_goal, T, costs, mean_pick)
+        value = split_value(preloaded, parts, waiting, at_goal, T, costs, mean_pick, trip)
         if best is None or value > best[0]:
             best = (value, parts)
     return best
