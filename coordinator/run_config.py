@@ -347,16 +347,16 @@ class RunConfig(BaseModel):
         except RobotError:
             raise ValueError(f"robot: no robot {self.robot!r} (known: {', '.join(names())}; tmoc robots)") from None
         if bot.kind == "arm":
-            from coordinator.domains import load, options_of
+            from coordinator.domains import load
+            from coordinator.robots import fits, options_for
 
             phys = load(self.domain, n_blocks=self.n_blocks).physics
-            if getattr(phys, "robot_base", None) is None:
+            if not fits(self.robot, phys):
                 raise ValueError(f"robot: domain {self.domain!r} declares no robot_base, so the arm "
                                  f"{self.robot!r} has nowhere to stand")
             # A domain that can push with the open front finger does so for an arm (its wrist
             # then clears the tower or the tray: docs/SERVICE.md), unless the run says otherwise.
-            if "push_open" in options_of(phys) and "push_open" not in self.options:
-                self.options = {**self.options, "push_open": True}
+            self.options = options_for(self.robot, phys, self.options)
         return self
 
     @model_validator(mode="after")

@@ -26,6 +26,7 @@ from . import reach
 from . import trajectory as tr
 from .configuration import Configuration, quat_from_yaw, rotate_z, yaw_of
 from .domains import Domain
+from .robots.acting import current_arm
 from .robots.motion import ArmMotion, link_boxes, link_poses
 
 REST_LINEAR = 0.004     # m/s: below this everything counts as at rest
@@ -359,12 +360,22 @@ def act(world: GroundedWorld, domain, config: Configuration, believed: dict, act
     on the way (issue 24: T*'s probes judged stacks of 58 mm cubes teleported into place,
     while the robot's, carried, pivoted in the fingers and failed). `run_as(traj, action)`
     gives the trajectory a real arm runs instead of the planned one (its retimed start of
-    the action follows)."""
+    the action follows). Inside a probe trial with an arm (``robots.acting.arm_moves``) the
+    arm plans the action and the world moves its links along."""
     key = domain.action_pose(believed, config, action)
     traj = domain.action_trajectory(config, action, key)
     carried = domain.held_object(domain.symbolic_state(config)) is not None
     start = 0.0 if carried else domain.transit_end_time(config, action, key)
+    arm = current_arm()
+    motion = None
+    if arm is not None:            # an arm does the trial's actions (robots.acting)
+        traj, start, motion = arm.plan(domain, config, believed, action, traj, start, key)
     if run_as is not None:
         planned, traj = traj, run_as(traj, action)
         start = float(np.interp(start, planned[:, 0], traj[:, 0]))
-    return world.execute(traj, action, start_time=start)
+        if motion is not None:     # the arm's joints on the executed clock
+            motion = ArmMotion(motion.robot, motion.base, np.interp(motion.times, planned[:, 0], traj[:, 0]),
+                               motion.joints)
+    if motion is not None:
+        traj, motion = arm.track(domain, believed, traj, motion)
+    return world.execute(traj, action, start_time=start, arm=motion)

@@ -18,6 +18,7 @@ from .grounded_world import act  # noqa: F401  (re-exported for the domains' pro
 # The jitter lives with the reality gap; re-exported here for existing callers.
 from .reality_gap import (FRICTION_JITTER, PLACEMENT_JITTER_M, YAW_JITTER_RAD,  # noqa: F401
                           jitter_planar, jittered_domain)
+from .robots.acting import ArmRefused, trial_arm
 
 
 @dataclass(frozen=True)
@@ -100,14 +101,18 @@ def _trial(action: str, true_size: float, believed_size: float, load_k: int,
     not set its context up (e.g. a tower Y could not build)."""
     world_domain = jittered_domain(rng, domain=domain, n_blocks=n_blocks, **(options or {}))
     extra = {**(believed_kw or {}), **({} if believed_density is None else {"believed_density": believed_density})}
-    if by_name(world_domain):
-        full_truth, full_belief = _named(world_domain, true_size, believed_size, truth, belief, extra)
-        return _answer(world_domain.probe_trial(action, load_k, rng, truth=full_truth, belief=full_belief))
-    takes = probe_keywords(world_domain)
-    for name, value in (("truth", truth), ("belief", belief)):
-        if value is not None and ({"*", name} & takes):
-            extra[name] = dict(value)
-    return _answer(world_domain.probe_trial(action, true_size, believed_size, load_k, rng, **extra))
+    with trial_arm():             # the trial's own arm, where one acts (robots.acting)
+        try:
+            if by_name(world_domain):
+                full_truth, full_belief = _named(world_domain, true_size, believed_size, truth, belief, extra)
+                return _answer(world_domain.probe_trial(action, load_k, rng, truth=full_truth, belief=full_belief))
+            takes = probe_keywords(world_domain)
+            for name, value in (("truth", truth), ("belief", belief)):
+                if value is not None and ({"*", name} & takes):
+                    extra[name] = dict(value)
+            return _answer(world_domain.probe_trial(action, true_size, believed_size, load_k, rng, **extra))
+        except ArmRefused:
+            return False          # a refused action is a failed attempt, as in the loop
 
 
 def _answer(value) -> bool | None:

@@ -201,6 +201,15 @@ def _per_domain(name: str, doc: str, fields: dict, with_truth: bool) -> Any:
                                           description=f"objects in the scene (1..{top} in {d}; "
                                                       f"default {min(int(phys.n_objects), top)}); "
                                                       f"also spelled n_blocks"))
+        if "robot" in own:
+            # only the robots that can stand in this domain's scene: an arm needs its robot_base
+            # (a schema-valid request is never refused for its robot)
+            from coordinator.robots import names_for
+
+            bots = tuple(names_for(phys))
+            own["robot"] = (Literal[bots], Field(  # type: ignore[valid-type]
+                "gripper", description=f"the robot that moves the tool, one of: {', '.join(bots)} in {d}; "
+                                       "an arm's steps carry a joint trajectory (GET /v1/robots)"))
         if with_truth:
             own["truth"] = (truth, Field(default_factory=truth, description=truth.__doc__))
         if "true_size" in own and "size" not in phys.L.names:

@@ -8,6 +8,10 @@ friction (about 10 %) from the seed, takes the action's poses from Y with the be
 size B (default S) and reads the outcome through Y^-1. `--load K` is the number of blocks
 in the container for `push` and the number of blocks stacked for `stack`.
 
+`--robot ur5e` has the trials' actions done by the arm (`tmoc robots`): each action's joint
+path planned from where the last one left the arm, its links moving in the world, tracked
+as the simulated arm reality tracks it; an action the arm cannot do fails the trial.
+
 Mass in Y (stack_and_push): `--true-density` sets the blocks' density in the world and
 `--believed-density` the density Y sizes the grip force and the push's force limit from
 (too light a belief: the block slips on the lift, the push stalls; too heavy: the push
@@ -69,6 +73,11 @@ def register(subparsers) -> None:
                         "--option true_friction=0.6 for the chute, whose truth is not a size")
     p.add_argument("--engine", default=None, metavar="pybullet|mujoco",
                    help="the physics engine of the trials (default: pybullet where installed, else mujoco)")
+    p.add_argument("--robot", default="gripper", metavar="NAME",
+                   help="the robot that does the trials' actions (`tmoc robots`; default gripper): an arm "
+                        "plans each action's joint path from where the last one left it and its links "
+                        "move in the world, tracked as the simulated arm reality tracks it; an action it "
+                        "cannot do fails the trial")
     p.add_argument("--trials", type=int, default=20, metavar="N", help="number of trials (default 20)")
     p.add_argument("--seed", type=int, default=0, metavar="SEED", help="random seed (default 0)")
     p.add_argument("--json", action="store_true", help="print one JSON object instead of a line")
@@ -225,21 +234,34 @@ def run(args: argparse.Namespace) -> int:
     except EngineError as exc:
         raise UsageError(str(exc)) from None
     options["engine"] = engine
+    from coordinator.robots import RobotError, fits, names, options_for
+
+    try:
+        fitting = fits(args.robot, world_domain)
+    except RobotError:
+        raise UsageError(f"--robot: no robot {args.robot!r} (known: {', '.join(names())}; tmoc robots)") from None
+    if not fitting:
+        raise UsageError(f"--robot: the {args.domain} domain declares no robot_base, so the arm "
+                         f"{args.robot!r} has nowhere to stand")
+    options = options_for(args.robot, world_domain, options)
     sized = "size" in L.names
     true_size = full_truth["size"] if sized else math.nan
     believed = full_belief["size"] if sized else math.nan
+    from coordinator.loop.arm_trials import with_robot
+
     try:
-        result = probe(args.action, true_size, believed, load_k=args.load, trials=args.trials,
-                       seed=args.seed, n_blocks=n_blocks, domain=args.domain, options=options,
-                       believed_density=believed_density, truth=full_truth, belief=full_belief,
-                       believed_kw=believed_kw)
+        with with_robot(args.robot):
+            result = probe(args.action, true_size, believed, load_k=args.load, trials=args.trials,
+                           seed=args.seed, n_blocks=n_blocks, domain=args.domain, options=options,
+                           believed_density=believed_density, truth=full_truth, belief=full_belief,
+                           believed_kw=believed_kw)
     except ValueError as exc:
         if str(exc).startswith("believed_density:"):
             raise UsageError(f"--believed-density: {str(exc).split(': ', 1)[1]}") from None
         raise
     if args.json:
         out = {"domain": args.domain, **result.to_dict(), "seed": args.seed, "n_blocks": n_blocks,
-               "engine": engine, "truth": full_truth, "belief": full_belief}
+               "engine": engine, "truth": full_truth, "belief": full_belief, "robot": args.robot}
         if not sized:
             out["true_size"] = out["believed_size"] = None
         print(json.dumps(out, sort_keys=True))
@@ -258,5 +280,6 @@ def run(args: argparse.Namespace) -> int:
                 + "; belief " + ", ".join(f"{n}={v:g}" for n, v in full_belief.items()))
     print(f"{args.domain} {args.action}: {result.successes}/{result.trials} succeeded, "
           f"success rate {result.success_rate:.3f} ({what}{load}{dens}, seed {args.seed}"
-          f"{', engine ' + engine if args.engine else ''})")
+          f"{', engine ' + engine if args.engine else ''}"
+          f"{', robot ' + args.robot if args.robot != 'gripper' else ''})")
     return 0

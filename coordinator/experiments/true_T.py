@@ -13,6 +13,8 @@ from typing import Callable, Sequence
 
 from sim_workers.domains import DEFAULT_DOMAIN
 
+from ..loop.arm_trials import is_arm, with_robot
+from ..robots import options_for
 from .spec import WEIGHTS_TRUE_DENSITY, Setting, Spec
 from .runfiles import jsonable, write_atomic
 
@@ -61,7 +63,14 @@ def t_star_params(spec: Spec, n_blocks: int | None = None, setting: Setting | No
         params.update(setting.t_star)
     if spec.reality_engine is not None:     # T* is reality's: probed in its engine
         params["options"] = {**params.get("options", {}), "engine": spec.reality_engine}
+    robot = {**spec.run_fields, **(setting.overrides if setting is not None else {})}.get("robot")
+    if _is_arm(robot):                      # T* is the runs' robot's (issue 41): its arm does the probes
+        params["robot"] = str(robot)
     return params
+
+
+def _is_arm(name) -> bool:
+    return isinstance(name, str) and is_arm(name)
 
 
 def t_star_files(spec: Spec) -> dict[tuple[str, int], tuple[str, dict]]:
@@ -105,15 +114,27 @@ def cached_true_T(out: Path, params: dict, name: str = "true_T.json") -> dict | 
 
 def _probe_remote():
     import ray
-    from sim_workers.probe import probe
 
     @ray.remote(num_cpus=1)
     def probe_task(action: str, true_size: float, load_k: int, trials: int, seed: int,
-                   n_blocks: int, domain: str, options: dict | None = None) -> int:
-        return probe(action, true_size, true_size, load_k, trials, seed, n_blocks,
-                     domain=domain, options=options).successes
+                   n_blocks: int, domain: str, options: dict | None = None, robot: str | None = None) -> int:
+        return probe_successes(action, true_size, load_k, trials, seed, n_blocks, domain, options, robot)
 
     return probe_task
+
+
+def probe_successes(action: str, true_size: float, load_k: int, trials: int, seed: int, n_blocks: int,
+                    domain: str, options: dict | None = None, robot: str | None = None) -> int:
+    """One of T*'s probes (Y at the truth): its successes in `trials`, done by `robot` (None:
+    the floating gripper) with the domain's options as that robot runs it."""
+    from sim_workers.probe import probe
+
+    options = dict(options or {})
+    if robot is not None:
+        options = options_for(robot, _physics(domain), options)
+    with with_robot(robot):
+        return probe(action, true_size, true_size, load_k, trials, seed, n_blocks,
+                     domain=domain, options=options).successes
 
 
 def submit_probes(params: dict) -> list:
@@ -121,7 +142,7 @@ def submit_probes(params: dict) -> list:
     task = _probe_remote()
     domain = params.get("domain", DEFAULT_DOMAIN)
     return [task.remote(a, params["true_size"], k, params["trials"], params["seed"], params["n_blocks"],
-                        domain, params.get("options"))
+                        domain, params.get("options"), params.get("robot"))
             for a, k in probe_jobs(params["n_blocks"], domain)]
 
 

@@ -78,6 +78,25 @@ def test_the_schema_has_one_task_model_per_domain(client):
     assert {"TaskSpecContainer", "TaskSpecStackAndPush"} <= set(schemas)
 
 
+def test_each_domain_s_schema_offers_the_robots_that_can_stand_in_it(client):
+    """An arm stands where the domain declares (robot_base): a domain without one offers the
+    floating gripper alone, so a schema-valid request is never refused for its robot."""
+    from types import SimpleNamespace
+
+    from coordinator.domains import load, names
+    from coordinator.robots import names_for
+
+    schemas = client.get("/openapi.json").json()["components"]["schemas"]
+    for d in names():
+        label = "".join(w.title() for w in d.split("_"))
+        for model in (f"TaskSpec{label}", f"SessionCreate{label}"):
+            prop = schemas[model]["properties"]["robot"]
+            offered = prop["enum"] if "enum" in prop else [prop["const"]]       # one robot: a const
+            assert offered == names_for(load(d).physics), (model, offered)
+    assert "ur5e" in names_for(load("container").physics)
+    assert names_for(SimpleNamespace(robot_base=None)) == ["gripper"]
+
+
 def test_the_schema_offers_the_installed_engines_and_a_session_has_no_reality_engine(client):
     schemas = client.get("/openapi.json").json()["components"]["schemas"]
     task = schemas["TaskSpecContainer"]["properties"]
