@@ -59,7 +59,7 @@ def episodes() -> dict[str, tuple[dict, dict]]:
     out = {}
     for name in NAMES:
         cfg = RunConfig(agent=name, particles=PARTICLES, episodes=1, max_steps=3, seed=2,
-                        particle_budget="fixed")
+                        particle_budget="fixed", n_objects=4)
         sims = {}
         pool = ShardPool(cfg.domain, {"n_blocks": cfg.n_blocks}, n_shards=0)
         try:
