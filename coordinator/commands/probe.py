@@ -250,12 +250,15 @@ def run(args: argparse.Namespace) -> int:
     from coordinator.loop.arm_trials import with_robot
 
     try:
-        with with_robot(args.robot):
+        with with_robot(args.robot) as doing:
             result = probe(args.action, true_size, believed, load_k=args.load, trials=args.trials,
                            seed=args.seed, n_blocks=n_blocks, domain=args.domain, options=options,
                            believed_density=believed_density, truth=full_truth, belief=full_belief,
                            believed_kw=believed_kw)
+        doing.check_used(args.domain)
     except ValueError as exc:
+        if str(exc).startswith("robot:"):
+            raise UsageError(f"--robot: {str(exc).split(': ', 1)[1]}") from None
         if str(exc).startswith("believed_density:"):
             raise UsageError(f"--believed-density: {str(exc).split(': ', 1)[1]}") from None
         raise

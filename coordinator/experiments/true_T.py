@@ -132,9 +132,11 @@ def probe_successes(action: str, true_size: float, load_k: int, trials: int, see
     options = dict(options or {})
     if robot is not None:
         options = options_for(robot, _physics(domain), options)
-    with with_robot(robot):
-        return probe(action, true_size, true_size, load_k, trials, seed, n_blocks,
-                     domain=domain, options=options).successes
+    with with_robot(robot) as doing:
+        successes = probe(action, true_size, true_size, load_k, trials, seed, n_blocks,
+                          domain=domain, options=options).successes
+    doing.check_used(domain)
+    return successes
 
 
 def submit_probes(params: dict) -> list:

@@ -24,7 +24,7 @@ from sim_workers.robots.servo import follow
 from .arm_motion import contact_time, plan_arm_step, robot_of, start_joints
 from .transit import transit_checker
 
-__all__ = ["ArmForTrials", "is_arm", "with_robot"]
+__all__ = ["ArmForTrials", "TrialRobot", "is_arm", "with_robot"]
 
 
 def is_arm(name: str | None) -> bool:
@@ -33,15 +33,19 @@ def is_arm(name: str | None) -> bool:
 
 
 class ArmForTrials:
-    """One trial's arm: plans each action the trial acts and tracks it (see the module)."""
+    """One trial's arm: plans each action the trial acts and tracks it (see the module);
+    `used` counts the actions it planned, over the trials of a ``with_robot`` block."""
 
-    def __init__(self, name: str) -> None:
+    def __init__(self, name: str, used: "TrialRobot | None" = None) -> None:
         self.name = name
+        self.used = used
         self._joints: np.ndarray | None = None       # where the last action left the arm
 
     def plan(self, domain, config, believed: dict, action: str, rows: np.ndarray, start: float,
              key: np.ndarray) -> tuple[np.ndarray, float, ArmMotion]:
         """The session's arm step for the action at the point belief `believed`."""
+        if self.used is not None:
+            self.used.actions += 1
         arm = robot_of(self.name, domain)
         sizes = np.asarray(domain.object_sizes(believed), dtype=np.float64)
         obstacles = domain.obstacles(config, sizes)
@@ -88,7 +92,31 @@ def _seed(config, action: str) -> int:
     return zlib.crc32(np.ascontiguousarray(config.objects, dtype=np.float64).tobytes() + action.encode())
 
 
-def with_robot(name: str | None):
+class TrialRobot:
+    """``with_robot``'s context: probe trials inside it are done by robot `name`; `actions`
+    counts the actions its arm planned (0 after trials that ran: the domain's probe does not
+    act through ``grounded_world.act``, so no arm could do them: ``check_used``)."""
+
+    def __init__(self, name: str | None) -> None:
+        self.name = name
+        self.actions = 0
+        self._context = arm_moves(partial(ArmForTrials, name, self) if is_arm(name) else None)
+
+    def __enter__(self) -> "TrialRobot":
+        self._context.__enter__()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self._context.__exit__(*exc)
+
+    def check_used(self, domain: str) -> None:
+        """ValueError when an arm was asked for and the domain's probe never let it act."""
+        if is_arm(self.name) and self.actions == 0:
+            raise ValueError(f"robot: the {domain} domain's probe does not run its actions through "
+                             "sim_workers.grounded_world.act, so the arm cannot do them")
+
+
+def with_robot(name: str | None) -> TrialRobot:
     """The context in which probe trials are done by robot `name` (``arm_moves``); the
     floating gripper (or None) leaves them as they are."""
-    return arm_moves(partial(ArmForTrials, name) if is_arm(name) else None)
+    return TrialRobot(name)

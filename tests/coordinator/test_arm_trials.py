@@ -87,3 +87,16 @@ def test_t_star_is_probed_by_the_runs_robot(fields, robot_key):
     # the gripper's T* keeps its parameters, so caches made before stay valid
     if robot_key is None:
         assert "robot" not in params
+
+
+def test_an_arm_a_probe_never_let_act_is_named_not_ignored():
+    """A domain's probe that does not act through grounded_world.act cannot be done by the
+    arm: `tmoc probe --robot` and T* say so instead of probing the floating gripper."""
+    with with_robot("ur5e") as doing:
+        probe("pickup", 0.045, load_k=1, trials=1, seed=0, domain="container")
+    assert doing.actions == 1
+    doing.check_used("container")
+    idle = with_robot("ur5e")
+    with pytest.raises(ValueError, match="robot: the slide domain's probe does not run its actions through"):
+        idle.check_used("slide")
+    with_robot("gripper").check_used("slide")      # the floating gripper needs nothing
