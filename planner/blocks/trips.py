@@ -44,6 +44,9 @@ class Problem:
     load0: int                    # blocks in the container (standing at init)
     at_goal: bool                 # the container stands at goal
     return_push: bool = True      # a trip ends with a return push (stack-and-push: none)
+    # The first `clear_first` blocks of `order` are picked before any push (stack-and-push:
+    # blocks lying on the rail, which a push would sweep along with the tower).
+    clear_first: int = 0
 
     @property
     def units(self) -> int:
@@ -138,7 +141,7 @@ def scaled_weights(problem: Problem, model: Model, classes: Mapping[str, str],
     for i, block in enumerate(problem.order):
         per_block[i] += pick[classes[block]]            # every waiting block is picked once
     waiting = len(problem.order)
-    lines = [f"init_wait({waiting}).", f"init_load({problem.load0}).",
+    lines = [f"init_wait({waiting}).", f"init_load({problem.load0}).", f"init_clear({problem.clear_first}).",
              f"init_cpos({'goal' if problem.at_goal else 'init'}).", f"w_back({back})."]
     if problem.held is not None:
         lines.append(f"init_hold({class_ids[classes[problem.held]]}).")

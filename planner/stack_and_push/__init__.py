@@ -96,13 +96,15 @@ def _problem(state: frozenset[str], first: Sequence[str] = ()) -> tp.Problem:
             _, (b, where) = parse_term(atom)
             if where in PICKUP_PLACES:
                 place[b] = where
-    # Blocks off their supply slot first (a fallen block blocks the rail), of those the ones
-    # resting on others (`first`: a block under one cannot be taken while it is there),
-    # then by index.
+    # Blocks off their supply slot first, those on the rail before all (a push would sweep
+    # them: no push until they are picked, ``clear_first``), of those the ones resting on
+    # others (`first`: a block under one cannot be taken while it is there), then by index.
     on_others = frozenset(first)
-    order = sorted(place, key=lambda b: (place[b] == "init", b not in on_others, block_index(b)))
+    order = sorted(place, key=lambda b: (place[b] != "rail", place[b] == "init", b not in on_others,
+                                         block_index(b)))
+    on_rail = sum(1 for b in place if place[b] == "rail")
     return tp.Problem(tuple(order), place, held_block(state), len(tower(state)), False,
-                       return_push=False)
+                       return_push=False, clear_first=on_rail)
 
 
 def _name_actions(problem: tp.Problem, steps: Sequence[str]) -> tuple[str, ...]:

@@ -138,7 +138,9 @@ def _moves(s: frozenset[str]) -> list[str]:
         return [f"stack(r,{held},tower)"]
     moves = [f"pickup(r,{a[6:-1].split(',')[0]},{a[6:-1].split(',')[1]})" for a in s
              if a.startswith("is_in(") and not a.endswith(",goal)")]
-    return moves + ([PUSH] if sp.tower(s) else [])
+    # a push sweeps what lies on the rail: the planner pushes only with the rail clear
+    rail_clear = not any(a.startswith("is_in(") and a.endswith(",rail)") for a in s)
+    return moves + ([PUSH] if sp.tower(s) and rail_clear else [])
 
 
 def _random_T(rng: np.random.Generator, n: int) -> dict:
@@ -224,6 +226,23 @@ def test_graded_push_curve_gives_two_towers_of_four():
     assert plan.actions.count(PUSH) == 2 and "push(r,c,goal,init)" not in plan.actions
     optimistic = sp.plan(sp.initial_state(8), sp.StackAndPushTask().optimistic_transition(8))
     assert optimistic.loads == (8,)
+
+
+def test_no_push_before_the_rail_is_clear():
+    """A push sweeps the blocks lying on the rail in front of the tower, a load T's context
+    (the tower's height) does not see: the plan picks them up before its first push, even
+    where T would rather push the standing tower first."""
+    state = sp.parse_state(["on(b1,start)", "on(b2,b1)", "is_in(b3,rail)", "is_in(b4,init)",
+                            "is_in(b5,init)", "hand_empty(r)"])
+    # a tower of 3 topples: the unconstrained best pushes the standing two at once
+    T = {"pickup": 1.0, "stack": [1.0] * 5, "push": [1.0, 1.0, 0.0, 0.0, 0.0]}
+    plan = sp.plan(state, T)
+    first_push = plan.actions.index(PUSH)
+    assert "pickup(r,b3,rail)" in plan.actions[:first_push], plan.actions
+    assert plan.optimal and plan.expected_utility == pytest.approx(_bellman(state, T), abs=1e-6)
+    clear = sp.parse_state(["on(b1,start)", "on(b2,b1)", "is_in(b3,init)", "is_in(b4,init)",
+                            "is_in(b5,init)", "hand_empty(r)"])
+    assert sp.plan(clear, T).actions[0] == PUSH          # with the rail clear it pushes the two first
 
 
 def test_max_steps_and_bad_transition_are_refused_by_name():
