@@ -151,11 +151,12 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.include_router(ui.router)
     v1 = APIRouter(prefix="/v1", dependencies=gate, responses=error_responses(401))
     limits = (settings.max_particles, settings.max_episodes, settings.max_steps)
-    v1.include_router(tasks.router(S.task_spec_model(*limits, settings.max_task_runtime_s)))
+    rows = settings.max_counterfactual_rows
+    v1.include_router(tasks.router(S.task_spec_model(*limits, settings.max_task_runtime_s, rows)))
     v1.include_router(frames.router)
     v1.include_router(domains.router)
     v1.include_router(robots.router)
-    v1.include_router(sessions.router(S.session_create_model(*limits)))
+    v1.include_router(sessions.router(S.session_create_model(*limits, rows)))
     app.include_router(v1)
     return app
 

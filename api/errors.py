@@ -44,8 +44,10 @@ def _friendly(err: dict, settings: Settings) -> str:
     if loc[-1:] == ("domain",) and typ == "literal_error":
         from coordinator.domains import names
         return f"unknown domain {err.get('input')!r} (known: {', '.join(names())}; GET /v1/domains)"
-    if typ == "less_than_equal" and loc[-1:] in (("particles",), ("counterfactual_rows",)):
+    if typ == "less_than_equal" and loc[-1:] == ("particles",):
         return f"{msg} (this server's limit --max-particles {settings.max_particles})"
+    if typ == "less_than_equal" and loc[-1:] == ("counterfactual_rows",):
+        return f"{msg} (this server's limit --max-counterfactual-rows {settings.max_counterfactual_rows})"
     if typ == "less_than_equal" and loc[-1:] == ("episodes",):
         return f"{msg} (this server's limit --max-episodes {settings.max_episodes})"
     if typ == "less_than_equal" and loc[-1:] == ("max_steps",):

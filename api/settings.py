@@ -14,6 +14,10 @@ class Settings:
     max_particles: int = 512
     max_episodes: int = 1000
     max_steps: int = 1000
+    # Counterfactual rows a task or session may ask for (its snapshot simulates rows x the
+    # domain's contexts before each plan); one that names none gets min(4, this), 0: the
+    # paper's loop on this server.
+    max_counterfactual_rows: int = 32
     max_queued: int = 64
     max_sessions: int = 16
     # A session nothing was stored for this long no longer counts against max_sessions,

@@ -41,6 +41,7 @@ import argparse
 import json
 import os
 import time
+from dataclasses import replace
 from pathlib import Path
 
 os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")
@@ -134,8 +135,8 @@ def main(argv=None) -> int:
     ap.add_argument("--particles", type=int, default=None)
     ap.add_argument("--max-steps", type=int, default=60, help="actions per episode at most (default 60)")
     ap.add_argument("--truths", default=None, metavar="I,J,...",
-                    help="only these truths of each domain's grid, by index (a smoke run; run seeds follow "
-                         "the index in the subset, so they are not the whole grid's)")
+                    help="only these truths of each domain's grid, by index (their runs are the whole "
+                         "grid's, seed for seed)")
     ap.add_argument("--particle-budget", default="kld", choices=("fixed", "kld"),
                     help="as `tmoc run` (default kld, the service's default)")
     ap.add_argument("--probe-trials", type=int, default=None,
@@ -173,7 +174,8 @@ def main(argv=None) -> int:
         spec = spec_from_args(sweep_args(domain, args))
         if args.truths:
             picked = [int(i) for i in args.truths.split(",") if i.strip()]
-            spec.settings = [spec.settings[i] for i in picked]
+            # the grid's own run seeds: the subset's runs are the whole grid's, seed for seed
+            spec.settings = [replace(spec.settings[i], seed_index=i) for i in picked]
         t0 = time.perf_counter()
         done = ex.execute(spec, out / domain, resume=args.resume, progress=False)
         data = json.loads(Path(done["json"]).read_text())
@@ -229,7 +231,8 @@ def rejudge(args) -> int:
                 setattr(a, key, stored)
         spec = spec_from_args(sweep_args(domain, a))
         if args.truths:
-            spec.settings = [spec.settings[int(i)] for i in args.truths.split(",") if i.strip()]
+            spec.settings = [replace(spec.settings[int(i)], seed_index=int(i))
+                             for i in args.truths.split(",") if i.strip()]
         t_stars = {}
         for name, params in dict(t_star_files(spec).values()).items():
             t_stars[name] = cached_true_T(source, params, name)

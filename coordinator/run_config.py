@@ -214,9 +214,10 @@ class RunConfig(BaseModel):
     # Counterfactual simulated experience (issue 40; coordinator.transition.counterfactual):
     # before each episode's first plan, this many rows of L drawn from the belief each run
     # one trial of every context the domain declares, and T takes the outcomes as
-    # simulated evidence (a power prior per action family). 0: off, the paper's loop
-    # (stored settings without the field keep it).
-    counterfactual_rows: int = Field(0, ge=0, le=256)
+    # simulated evidence (a power prior per action family). 4 (docs/LOOP.md: measured to
+    # pay in every built-in domain); 0: off, the paper's loop (stored settings without the
+    # field keep it).
+    counterfactual_rows: int = Field(4, ge=0, le=256)
     # A reality gap the particle worlds do not know, for simulated realities: "ACTION:K"
     # makes every ACTION in a T context >= K fail in reality only (coordinator.loop.reality.
     # ContextFailure), e.g. "stack:3" (stacks onto 3 or more blocks). None: no such gap.
@@ -252,6 +253,12 @@ class RunConfig(BaseModel):
     # neighbour is within the fingers' reach) judged by the particle worlds with the pose
     # rule "success" (issue 40; docs/LOOP.md, "Y's alternatives"). Off: Y's pose alone.
     pose_alternatives: bool = True
+    # How the planner chooses among plans of equal expected utility, for a task half that
+    # declares "trials" in ``transition_extras`` (the block worlds): "first", clingo's first
+    # optimum (every run before the field); "evidence", the plan whose stacks and pushes
+    # rest least on T's prior (planner.blocks.trips.tie_weights; docs/LOOP.md, "Ties
+    # between equal plans"). Off by default until its calibration is measured over the grid.
+    tie_break: Literal["first", "evidence"] = "first"
     costs: Costs = Costs()
     shards: int | None = Field(None, ge=0, le=4096)
     # The hidden truth by the names of L (`tmoc domains`), e.g. {"size": 0.04, "density":
@@ -482,6 +489,8 @@ def stored_run_config(fields: dict) -> RunConfig:
     fields.setdefault("move_target", "prior")
     # Before Y's alternatives: Y's pose alone.
     fields.setdefault("pose_alternatives", False)
+    # Before the tie-break by evidence: clingo's first optimum.
+    fields.setdefault("tie_break", "first")
     # Before issue 24's filter: the plain Gaussian, sensor sigma, fixed jitter, no lock-in.
     for key, before in PRE_ISSUE_24_FILTER.items():
         fields.setdefault(key, before)

@@ -64,6 +64,10 @@ class TaskDomain(abc.ABC):
     default_costs: ClassVar[Mapping[str, float]]     # action costs, "fail" and the reward terms
     http_options: ClassVar[Mapping[str, dict]] = {}
     http_truth: ClassVar[Mapping[str, dict]] = {}
+    # Optional transition fields `plan` reads besides the success rates: "trials" (the trials
+    # behind each estimate, per context, as ``TransitionModel.trial_counts`` gives them)
+    # breaks ties between plans of equal expected utility by evidence (planner.blocks).
+    transition_extras: ClassVar[tuple[str, ...]] = ()
 
     @abc.abstractmethod
     def initial_state(self, n_blocks: int) -> frozenset[str]: ...

@@ -65,7 +65,8 @@ _CLI_ONLY = {"truth", "options"}
 TAG_PREFIX = "domain="      # the union's tags; error locations leave them out
 
 
-def _spec_fields(exclude: set[str], max_particles: int, max_episodes: int, max_steps: int) -> dict:
+def _spec_fields(exclude: set[str], max_particles: int, max_episodes: int, max_steps: int,
+                 max_counterfactual_rows: int | None = None) -> dict:
     fields: dict[str, Any] = {}
     for name, info in RunConfig.model_fields.items():
         if name in exclude or name in _CLI_ONLY:
@@ -104,11 +105,14 @@ def _spec_fields(exclude: set[str], max_particles: int, max_episodes: int, max_s
     fields["max_steps"] = (int, Field(
         min(RunConfig.model_fields["max_steps"].default, max_steps), ge=1, le=max_steps,
         description=f"actions per episode at most; this server's limit is {max_steps} (--max-steps)"))
+    # The snapshot's physics is rows x the domain's contexts a plan, so the server bounds
+    # the rows on their own (--max-counterfactual-rows); without that limit, its particles'.
+    rows = max_particles if max_counterfactual_rows is None else max_counterfactual_rows
     fields["counterfactual_rows"] = (int, Field(
-        min(RunConfig.model_fields["counterfactual_rows"].default, max_particles), ge=0, le=max_particles,
+        min(RunConfig.model_fields["counterfactual_rows"].default, rows), ge=0, le=rows,
         description=f"counterfactual experience: rows of L drawn from the belief before each episode's "
-                    f"first plan, each simulating every context the domain declares (0: off); at most "
-                    f"this server's particle limit, {max_particles}"))
+                    f"first plan, each simulating every context the domain declares (0: off, the "
+                    f"paper's loop); this server's limit is {rows} (--max-counterfactual-rows)"))
     fields["seed"] = (int, Field(
         0, ge=0, le=2**53 - 1, description="the run's seed (a JSON-safe integer, below 2^53)"))
     # Deprecated, still accepted (clients send it): a task cannot choose its shards, every
@@ -261,10 +265,10 @@ def spec_body(spec: BaseModel, **dump) -> dict:
 
 
 def task_spec_model(max_particles: int, max_episodes: int, max_steps: int = 1000,
-                    max_runtime_s: float = 3600.0) -> Any:
+                    max_runtime_s: float = 3600.0, max_counterfactual_rows: int | None = None) -> Any:
     """A task: the RunConfig fields, with this server's limits, and the kind of reality;
     `options` and `truth` per domain."""
-    fields = _spec_fields(set(), max_particles, max_episodes, max_steps)
+    fields = _spec_fields(set(), max_particles, max_episodes, max_steps, max_counterfactual_rows)
     fields["max_runtime_s"] = (float | None, Field(
         None, ge=1.0, le=max_runtime_s,
         description=f"the task's budget of running time in seconds (queueing not counted); past it "
@@ -282,14 +286,14 @@ def task_spec_model(max_particles: int, max_episodes: int, max_steps: int = 1000
                        fields, with_truth=True)
 
 
-def session_create_model(max_particles: int, max_episodes: int, max_steps: int = 1000) -> Any:
+def session_create_model(max_particles: int, max_episodes: int, max_steps: int = 1000,
+                         max_counterfactual_rows: int | None = None) -> Any:
     """An external-robot session: the learning settings plus, optionally, the first
     episode's initial observation. The truth (`true_size`) is the robot's world, not a field."""
     # (the simulated reality's fields: a robot's sensors are its own)
     fields = _spec_fields({"true_size", "known_properties", "reality_fail", "reality_engine",
                            "sensor_noise", "sensor_bias", "sensor_tails", "perception_sigma"},
-                          max_particles, max_episodes,
-                          max_steps)
+                          max_particles, max_episodes, max_steps, max_counterfactual_rows)
     fields["reality"] = (Literal["external"], Field(
         "external", description="the robot that posts observations is the real world"))
     fields["observation"] = (InitialObservation | None, Field(

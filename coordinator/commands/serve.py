@@ -32,6 +32,10 @@ def register(sub) -> None:
     p.add_argument("--max-particles", type=int, default=512, help="largest `particles` a task may ask for")
     p.add_argument("--max-episodes", type=int, default=1000, help="largest `episodes` a task may ask for")
     p.add_argument("--max-steps", type=int, default=1000, help="largest `max_steps` a task may ask for")
+    p.add_argument("--max-counterfactual-rows", type=int, default=32, metavar="M",
+                   help="largest `counterfactual_rows` a task or session may ask for (its snapshot "
+                        "simulates M x the domain's contexts before a plan); one that names none "
+                        "gets min(4, M); 0: the paper's loop only")
     p.add_argument("--max-queued", type=int, default=64, help="queued tasks before submissions get 429")
     p.add_argument("--max-sessions", type=int, default=16, help="active robot sessions before 429")
     p.add_argument("--shards", type=int, default=None,
@@ -93,6 +97,10 @@ def check_args(args) -> str | None:
         if getattr(args, flag) > most:
             raise UsageError(f"--{flag.replace('_', '-')}: {getattr(args, flag)} is over {most}, "
                              "the most a task can use")
+    rows = getattr(args, "max_counterfactual_rows", 32)
+    if not 0 <= rows <= field_bounds("counterfactual_rows")[1]:
+        raise UsageError(f"--max-counterfactual-rows: must be in [0, {field_bounds('counterfactual_rows')[1]}] "
+                         f"(got {rows})")
     idle = getattr(args, "session_idle_s", 3600.0)
     if not 1.0 <= idle <= 366 * 86400:
         raise UsageError(f"--session-idle-s: must be in [1, 31622400] seconds (got {idle})")
@@ -191,6 +199,7 @@ def main(args) -> int:
     settings = Settings(db=args.db, ray_address=args.ray_address, token=token,
                         max_particles=args.max_particles, max_episodes=args.max_episodes,
                         max_steps=args.max_steps, max_queued=args.max_queued,
+                        max_counterfactual_rows=args.max_counterfactual_rows,
                         max_sessions=args.max_sessions, n_shards=args.shards,
                         max_frames=args.max_frames, allowed_hosts=allowed_hosts(args, token),
                         max_task_runtime_s=args.max_task_runtime_s,

@@ -174,7 +174,8 @@ def run_config(spec: Spec, k: int, r: int) -> RunConfig:
     s = spec.settings[k]
     fields = {"domain": spec.domain, "particles": spec.particles, "episodes": spec.episodes,
               "max_steps": spec.max_steps, "true_size": spec.run_truth(r),
-              "seed": run_seed(spec.seed, EXPERIMENTS.index(spec.name), k, r),
+              "seed": run_seed(spec.seed, EXPERIMENTS.index(spec.name),
+                               k if s.seed_index is None else s.seed_index, r),
               "particle_budget": spec.particle_budget, "min_particles": spec.min_particles}
     fields.update(spec.run_fields)
     fields.update(s.overrides)

@@ -33,6 +33,10 @@ class Setting:
     label: str                # legend and CSV "setting"
     overrides: dict           # RunConfig fields
     t_star: dict | None = None   # T* probe parameters of this setting's own truth (the sweep)
+    # The setting index its run seeds are drawn with (None: its place in the spec). A subset
+    # of a grid (`bench_learning.py --truths`) keeps the grid's indices, so its runs are the
+    # whole grid's runs of those truths, seed for seed, and compare with them in pairs.
+    seed_index: int | None = None
 
 
 @dataclass

@@ -274,6 +274,8 @@ class Session:
         t0 = time.perf_counter()
         costs = self.costs
         T = self.transition.to_planner()
+        if self.config.tie_break == "evidence" and "trials" in self.task.transition_extras:
+            T["trials"] = self.transition.trial_counts()     # ties broken by evidence
         if self.agent.planner == "satisficing":
             plan = self.task.satisficing(self.state, rng=self.rng, transition=T, costs=costs)
         else:

@@ -180,6 +180,12 @@ class TransitionModel:
             out[name] = ps[0] if ks == [0] else ps
         return out
 
+    def trial_counts(self) -> dict:
+        """The (weighted) trials behind each estimate, as ``to_planner`` lays out the
+        estimates, for the actions with more than one context: what a task half that
+        breaks ties by evidence reads (``TaskDomain.transition_extras``)."""
+        return {name: self.trials[name].tolist() for name, ks in self._index.items() if ks != [0]}
+
     def to_dict(self) -> dict:
         """Exact, JSON-able state (Python floats round-trip bit for bit)."""
         out = {

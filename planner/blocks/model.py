@@ -40,6 +40,10 @@ DEFAULT_COSTS: dict[str, float] = {"pickup": 15.0, "stack": 10.0, "push": 30.0, 
                                    "deliver": 40.0, "all_delivered": 80.0}
 DEFAULT_CLASS = "block"
 TRANSITION_FIELDS = ("pickup", "stack", "push")
+# Optional: {"stack": [n_0..n_{N-1}], "push": [n_1..n_N]}, the trials T's estimate in each
+# context rests on. Among plans of equal expected utility the planner takes the one whose
+# stacks and pushes rest least on T's prior (``planner.blocks.trips.tie_weights``).
+OPTIONAL_TRANSITION_FIELDS = ("trials",)
 
 
 # Plan and PlanningError are every domain's (planner.domain); re-exported here.
@@ -56,6 +60,9 @@ class Model:
     p_stack: np.ndarray           # [p_0 .. p_{N-1}], index = blocks already in the container
     p_push: np.ndarray            # [p_1 .. p_N], index k-1 = load k
     costs: dict[str, float]
+    # the trials behind each estimate (the transition's optional "trials"; None: not given)
+    n_stack: np.ndarray | None = None   # [n_0 .. n_{N-1}]
+    n_push: np.ndarray | None = None    # [n_1 .. n_N]
 
 
 # The least success probability an attempt is priced at: a context T has seen fail every
@@ -165,9 +172,9 @@ def validate_transition(transition: Mapping, n_blocks: int, classes: set[str],
         raise PlanningError(f"transition: expected a mapping with fields "
                             f"{', '.join(TRANSITION_FIELDS)}, got {type(transition).__name__}")
     for key in transition:
-        if key not in TRANSITION_FIELDS:
+        if key not in TRANSITION_FIELDS + OPTIONAL_TRANSITION_FIELDS:
             raise PlanningError(f"transition: unknown field {key!r} (fields: "
-                                f"{', '.join(TRANSITION_FIELDS)})")
+                                f"{', '.join(TRANSITION_FIELDS + OPTIONAL_TRANSITION_FIELDS)})")
     for key in TRANSITION_FIELDS:
         if key not in transition:
             raise PlanningError(f"transition: missing field {key!r}")
@@ -189,7 +196,33 @@ def validate_transition(transition: Mapping, n_blocks: int, classes: set[str],
         p_stack=probabilities(transition["stack"], "stack", n_blocks,
                                f"pile heights 0..{n_blocks - 1}"),
         p_push=probabilities(transition["push"], "push", n_blocks, f"loads 1..{n_blocks}"),
-        costs=validate_costs(costs))
+        costs=validate_costs(costs),
+        **trial_counts(transition.get("trials"), n_blocks))
+
+
+def trial_counts(trials: object, n_blocks: int) -> dict:
+    """The optional ``trials`` field as Model's n_stack and n_push (PlanningError naming
+    the field): a mapping with "stack" and/or "push", each n_blocks counts >= 0 ("pickup"
+    is accepted and unused: every plan picks each block once)."""
+    if trials is None:
+        return {}
+    if not isinstance(trials, Mapping):
+        raise PlanningError(f"trials: expected a mapping with 'stack' and 'push', got {type(trials).__name__}")
+    out = {}
+    for key, field in (("stack", "n_stack"), ("push", "n_push")):
+        if key not in trials:
+            continue
+        values = trials[key]
+        if (isinstance(values, (str, bytes)) or not isinstance(values, Sequence) and not isinstance(values, np.ndarray)
+                or len(values) != n_blocks):
+            raise PlanningError(f"trials.{key}: expected {n_blocks} trial counts")
+        if not all(is_number(v) and math.isfinite(float(v)) and float(v) >= 0 for v in values):
+            raise PlanningError(f"trials.{key}: counts must be finite numbers >= 0")
+        out[field] = np.asarray(values, dtype=np.float64)
+    unknown = sorted(set(trials) - set(TRANSITION_FIELDS))
+    if unknown:
+        raise PlanningError(f"trials: unknown field {unknown[0]!r} (fields: {', '.join(TRANSITION_FIELDS)})")
+    return out
 
 
 def classes_of(blocks: Sequence[str], block_classes: Mapping[str, str] | None) -> dict[str, str]:

@@ -30,6 +30,30 @@ DEFAULT_TIME_LIMIT_S = 30.0
 MAX_SCALE = 10**6
 # clingo's numbers are 32-bit; keep every weight fact well inside.
 _WEIGHT_LIMIT = 2**30
+# The tie-break's weights are shares of one in thousandths (``tie_weights``).
+TIE_SCALE = 1000
+
+
+def tie_weights(trials: np.ndarray) -> np.ndarray:
+    """The tie-break's weight of a stack or push whose context T estimated from `trials`
+    trials: 1 / (1 + n), the share of the estimate that is T's prior pseudo-trial (T's
+    estimate is (s + 1) / (n + 1)), in thousandths. The encodings minimise its sum at a
+    priority below the expected utility's, so among plans of equal expected utility the
+    one whose estimates rest least on the prior wins: 40 successes of 40 and 4 of 4 both
+    estimate 1.0, and a tie between them is not a coin toss. It never trades expected
+    utility (a lower priority), so the optimistic prior still draws the robot to an
+    untried context whenever T values it higher."""
+    return np.rint(TIE_SCALE / (1.0 + np.asarray(trials, dtype=np.float64))).astype(np.int64)
+
+
+def tie_facts(model: Model) -> list[str]:
+    """``u_stack(H,U)`` and ``u_push(K,U)``: the tie-break's weights (none without trials)."""
+    lines = []
+    if model.n_stack is not None:
+        lines += [f"u_stack({h},{int(u)})." for h, u in enumerate(tie_weights(model.n_stack))]
+    if model.n_push is not None:
+        lines += [f"u_push({k},{int(u)})." for k, u in enumerate(tie_weights(model.n_push), start=1)]
+    return lines
 
 
 # --------------------------------------------------------------------------- the problem
@@ -158,6 +182,7 @@ def scaled_weights(problem: Problem, model: Model, classes: Mapping[str, str],
     weights = [back, *per_block, *stack_table.values(), *push_table.values()]
     if max(abs(w) for w in weights) >= _WEIGHT_LIMIT:
         return None
+    lines += tie_facts(model)
     return Weights("\n".join(lines), sum(per_block), back, stack_table, push_table)
 
 

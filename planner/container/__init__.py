@@ -73,6 +73,7 @@ class ContainerTask(TaskDomain):
     name = "container"
     action_names = ("pickup", "stack", "push")
     default_costs = dict(task_model.DEFAULT_COSTS)
+    transition_extras = ("trials",)       # ties between equal plans broken by evidence
     # Over HTTP: the density is known to the agent (L is the size alone).
     http_truth = {"density": {"type": float, **DENSITY_BOUNDS,
                               "description": "the blocks' density (kg/m^3), known to the agent"}}

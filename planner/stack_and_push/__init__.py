@@ -195,6 +195,7 @@ class StackAndPushTask(TaskDomain):
     name = "stack_and_push"
     action_names = ("pickup", "stack", "push")
     default_costs = dict(tm.DEFAULT_COSTS)
+    transition_extras = ("trials",)       # ties between equal plans broken by evidence
     # What a task or session request may set over HTTP (api.schemas builds the domain's
     # request model from these): each option valid on its own, whatever the others say.
     # The bounds are the physics half's (sim_workers.stack_and_push: MIN_FORCE_SIGMA).

@@ -39,6 +39,12 @@ class Server:
 
     def __init__(self, db: Path, *args: str, token: str | None = TOKEN, port: int | None = None) -> None:
         self.db = Path(db)
+        # The paper's loop unless a test asks for counterfactual experience: these servers
+        # test HTTP, storage and scheduling, and a snapshot before each episode's first plan
+        # (the service's default, counterfactual_rows 4) would add seconds of physics to
+        # every task and session they run (tests/api/test_sessions.py runs it over HTTP).
+        if "--max-counterfactual-rows" not in args:
+            args = ("--max-counterfactual-rows", "0", *args)
         self.args = list(args)
         self.token = token
         self.port = port or free_port()

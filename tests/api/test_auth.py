@@ -63,6 +63,7 @@ def test_without_a_token_only_loopback_unless_insecure(monkeypatch):
 @pytest.mark.parametrize("argv,needle", [
     (["--host", "0.0.0.0"], "--host 0.0.0.0"),
     (["--max-particles", "0"], "--max-particles"),
+    (["--max-counterfactual-rows", "257"], "--max-counterfactual-rows"),
     (["--port", "70000"], "--port"),
 ])
 @pytest.mark.slow          # a `tmoc serve` process per case

@@ -78,7 +78,8 @@ def test_frames_are_bounded_served_as_png_and_change_no_result(tmp_path):
 
 def test_tmoc_run_frames_writes_pictures_next_to_the_result(tmp_path):
     config = tmp_path / "run.json"
-    config.write_text(json.dumps({"n_blocks": 6, "particles": 4, "episodes": 1, "seed": 1}))   # as SPEC
+    config.write_text(json.dumps({"n_blocks": 6, "particles": 4, "episodes": 1, "seed": 1,
+                                  "counterfactual_rows": 0}))   # as SPEC on the test server
     out = tmp_path / "out"
     proc = subprocess.run([*tmoc(), "run", "--config", str(config), "--frames", "--no-progress",
                            "--out", str(out)], cwd=tmp_path, capture_output=True, text=True, timeout=600)

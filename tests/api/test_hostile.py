@@ -77,7 +77,8 @@ def test_a_ray_cluster_already_on_the_machine_is_not_joined(tmp_path):
         time.sleep(8)                     # the head's GCS is up
         assert head.poll() is None
         out = subprocess.run([*tmoc(), "run", "--particles", "2", "--episodes", "1", "--max-steps", "2",
-                              "--no-progress", "--out", str(tmp_path)], capture_output=True, text=True,
+                              "--counterfactual", "0", "--no-progress", "--out", str(tmp_path)],
+                             capture_output=True, text=True,
                              timeout=240, env=env)
         assert out.returncode == 0, out.stderr[-2000:]
         assert json.loads((tmp_path / "result.json").read_text())["episodes"][0]["actions"] >= 1

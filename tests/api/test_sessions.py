@@ -13,7 +13,7 @@ from mcap.reader import make_reader
 from coordinator.cli import main
 from coordinator.loop.reality import SimulatedReality
 
-from .conftest import TOKEN, drive_episode, observation_body, stream_events
+from .conftest import TOKEN, Server, drive_episode, observation_body, stream_events
 
 # Slow: real tasks on a served Ray. Timeout: a task's event stream (180 s) after the shared server's start (90 s).
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(300)]
@@ -209,14 +209,16 @@ def test_a_stack_and_push_robot_session_and_task_over_http(client):
     assert events[-2]["data"]["actions"] == 4
 
 
-def test_a_robot_session_asks_its_worlds_before_its_first_plan(client):
+def test_a_robot_session_asks_its_worlds_before_its_first_plan(tmp_path):
     # counterfactual_rows (issue 40): the episode's first plan is made with the worlds lent,
-    # so the snapshot's trials are in the episode's record.
+    # so the snapshot's trials are in the episode's record; a server with the default limit
+    # gives a session that names no rows the service's default, 4.
     world = SimulatedReality("container", {"n_blocks": 3}, {"block_sizes": np.full(3, TRUE_SIZE)})
+    srv = Server(tmp_path / "counterfactual.sqlite", "--max-counterfactual-rows", "32").start()
     try:
-        spec = {"agent": "tmoc", "particles": 4, "episodes": 1, "max_steps": 2, "seed": 1, "n_objects": 3,
-                "counterfactual_rows": 2}
+        spec = {"agent": "tmoc", "particles": 4, "episodes": 1, "max_steps": 2, "seed": 1, "n_objects": 3}
         start = world.start_episode(np.random.default_rng(0))
+        client = srv.client()
         r = client.post("/v1/sessions", json={**spec, "observation": _observation(start)})
         assert r.status_code == 201, r.text
         sid, step = r.json()["id"], r.json()["next"]
@@ -225,10 +227,13 @@ def test_a_robot_session_asks_its_worlds_before_its_first_plan(client):
             body = client.post(f"/v1/sessions/{sid}/observations", json=_observation(outcome, step)).json()
             step = body["next"]
         jobs = 1 + 3 + 3                        # the container's pickup, stacks of 1..3, pushes of 1..3
-        assert body["episode"]["counterfactual_trials"] == 2 * jobs, body["episode"]
+        assert body["episode"]["counterfactual_trials"] == 4 * jobs, body["episode"]
         assert body["episode"]["counterfactual_s"] > 0
+        assert client.get(f"/v1/sessions/{sid}").json()["spec"]["counterfactual_rows"] == 4
+        client.close()
     finally:
         world.close()
+        srv.stop()
 
 
 def test_an_arm_s_session_steps_carry_a_joint_trajectory_a_client_can_check(client, robot):

@@ -17,7 +17,7 @@ BAD_TASKS = [
     ({"likelihood": "exact"}, "likelihood", "replay"),
     ({"particles": 0}, "particles", "greater than or equal to 1"),
     ({"particles": 65}, "particles", "--max-particles 64"),
-    ({"counterfactual_rows": 65}, "counterfactual_rows", "--max-particles 64"),
+    ({"counterfactual_rows": 1}, "counterfactual_rows", "--max-counterfactual-rows 0"),
     ({"counterfactual_rows": -1}, "counterfactual_rows", "greater than or equal to 0"),
     ({"episodes": 7}, "episodes", "--max-episodes 6"),
     ({"max_steps": 61}, "max_steps", "--max-steps 60"),

@@ -26,7 +26,8 @@ from pathlib import Path
 REPO = Path(__file__).resolve().parents[2]     # for test helpers only: the packages come installed
 os.environ.setdefault("RAY_USAGE_STATS_ENABLED", "0")
 
-SPEC = {"agent": "tmoc", "particles": 4, "episodes": 1, "max_steps": 4, "seed": 7}
+# (the paper's loop: these scenarios are about nodes and dispatch, not T's prior)
+SPEC = {"agent": "tmoc", "particles": 4, "episodes": 1, "max_steps": 4, "seed": 7, "counterfactual_rows": 0}
 
 
 def _load_helper(path: Path):

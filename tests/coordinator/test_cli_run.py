@@ -40,6 +40,9 @@ def test_a_tiny_run_writes_result_json_and_curve_png(ray_cluster, tmp_path, caps
     result = json.loads((tmp_path / "result.json").read_text())
     assert set(result) >= {"config", "episodes", "summary", "runtime"}
     assert len(result["episodes"]) == 2
+    # The default asks the worlds first: 4 rows x the container's 17 contexts an episode.
+    assert result["config"]["counterfactual_rows"] == 4
+    assert all(e["counterfactual_trials"] >= 4 * 17 for e in result["episodes"])
     for e in result["episodes"]:
         assert set(e) >= {"utility", "actions", "failures", "loads", "delivered", "posterior", "ess", "wall_s"}
         assert e["actions"] == 3 and set(e["posterior"]) >= {"size_mean", "size_std"}

@@ -132,7 +132,8 @@ def test_cli_print_config_carries_truth_and_options(capsys):
 # -- learning --------------------------------------------------------------------------
 def _one_episode(sigma: float) -> dict:
     cfg = RunConfig(domain="stack_and_push", particles=16, episodes=1, seed=0, max_steps=12,
-                    truth=HEAVY, options={**UNKNOWN, "force_sigma": sigma})
+                    truth=HEAVY, options={**UNKNOWN, "force_sigma": sigma},
+                    counterfactual_rows=0)     # the density's posterior, not T's prior
     return run(cfg, pool=ShardPool(cfg.domain, {"n_blocks": 8, **cfg.options}, n_shards=0))
 
 

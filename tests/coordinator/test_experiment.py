@@ -19,7 +19,10 @@ from coordinator.cli import main
 # Four objects, not eight: T* probes 9 contexts, not 17, and every run's worlds are half
 # as full (the seven experiments: 147 s against 188 s on 2 cores, measured).
 TINY = ["--runs", "2", "--episodes", "2", "--particles", "4", "--max-steps", "3",
-        "--probe-trials", "1", "--no-progress", "--set", "n_blocks=4"]
+        "--probe-trials", "1", "--no-progress", "--set", "n_blocks=4",
+        # what each experiment writes, not T's prior: the paper's loop, without the
+        # counterfactual snapshot (tests/coordinator/test_counterfactual.py tests it)
+        "--set", "counterfactual_rows=0"]
 # The sweep has its own files and test (tests/coordinator/test_sweep.py).
 GENERIC = tuple(n for n in ex.EXPERIMENTS if n != "sweep")
 SUMMARY_KEYS = {"mean_utility_last_fifth", "episodes_to_converge", "final_posterior_error",
@@ -269,7 +272,8 @@ def test_particles_with_the_kld_budget_shows_the_count_falling(ray_cluster, tmp_
     # with eight, 360 -> 228 at twice the cost).
     assert main(["experiment", "particles", "--runs", "1", "--episodes", "2", "--particles", "12",
                  "--probe-trials", "1", "--no-progress", "--seed", "3", "--particle-budget", "kld",
-                 "--min-particles", "4", "--set", "n_blocks=4", "--out", str(out)]) == 0
+                 "--min-particles", "4", "--set", "n_blocks=4", "--set", "counterfactual_rows=0",
+                 "--out", str(out)]) == 0
     summary = json.loads((out / "particles.json").read_text())
     assert summary["spec"]["particle_budget"] == "kld"
     top = summary["settings"]["N=12"]

@@ -25,7 +25,8 @@ def _strip_times(result: dict) -> dict:
 
 def test_posterior_converges_to_the_hidden_size():
     cfg = RunConfig(agent="tmoc", particles=24, episodes=1, max_steps=6, seed=3, true_size=0.050,
-                    particle_budget="fixed")      # every action with all 24 (counted below)
+                    particle_budget="fixed",      # every action with all 24 (counted below)
+                    counterfactual_rows=0)        # the belief, not T's prior
     result = run(cfg)
     prior_std = (0.060 - 0.030) / np.sqrt(12)
     post = result["episodes"][-1]["posterior"]
@@ -70,7 +71,8 @@ def test_tmp_rl_learns_its_grounding_where_the_prior_mean_grasp_fails():
 
 
 def test_same_seed_same_result_whatever_the_shards_and_after_a_shard_dies():
-    cfg = dict(agent="tmoc", particles=6, episodes=2, seed=7, max_steps=5)
+    # (the paper's loop: the snapshot's own split over shards is tests/coordinator/test_counterfactual.py's)
+    cfg = dict(agent="tmoc", particles=6, episodes=2, seed=7, max_steps=5, counterfactual_rows=0)
     one = _strip_times(run(RunConfig(**cfg, shards=1)))
     two = _strip_times(run(RunConfig(**cfg, shards=2)))
     killed = _strip_times(run(RunConfig(**cfg, shards=2), kill_shard_at=1))

@@ -62,7 +62,7 @@ def test_resample_to_a_new_count_is_seeded_and_keeps_the_ancestors():
 
 def _run(budget: str, episodes: int = 3, n_blocks: int = 8) -> dict:
     cfg = RunConfig(particles=24, episodes=episodes, seed=0, true_size=0.034, particle_budget=budget,
-                    min_particles=6, n_blocks=n_blocks)
+                    min_particles=6, n_blocks=n_blocks, counterfactual_rows=0)
     return run(cfg, pool=ShardPool(cfg.domain, {"n_blocks": n_blocks}, n_shards=0))
 
 

@@ -65,6 +65,27 @@ def test_each_truth_gets_its_own_T_star_file():
     assert "truths" not in one.to_dict()
 
 
+def test_a_subset_of_the_grid_keeps_the_grids_run_seeds():
+    # bench_learning.py --truths 1,3: those truths' runs are the whole grid's, seed for seed,
+    # so a subset re-run compares in pairs with a committed sweep of the grid.
+    from dataclasses import replace
+
+    from coordinator.cli import build_parser
+    from coordinator.commands.experiment import spec_from_args
+
+    args = ["experiment", "sweep", "--domain", "stack_and_push", "--runs", "3"]
+    grid = spec_from_args(build_parser().parse_args(args))
+    subset = spec_from_args(build_parser().parse_args(args))
+    subset.settings = [replace(grid.settings[i], seed_index=i) for i in (1, 3)]
+    for k, i in enumerate((1, 3)):
+        for r in range(3):
+            assert ex.run_config(subset, k, r) == ex.run_config(grid, i, r)
+    # without the grid's index a setting's place in its spec draws the seeds (as before)
+    plain = spec_from_args(build_parser().parse_args(args))
+    plain.settings = [grid.settings[3]]
+    assert ex.run_config(plain, 0, 0).seed == ex.run_config(grid, 0, 0).seed != ex.run_config(grid, 3, 0).seed
+
+
 def test_compare_draws_one_truth_per_run_across_the_prior():
     """By default `compare` hides a size per run, run r's from bin r of the prior, the same
     for every agent (paired), each judged against its own truth's T*."""
@@ -139,7 +160,7 @@ def test_sweep_writes_its_files(ray_cluster, tmp_path):
     # Four blocks: T* probes 9 contexts per truth, not 17 (22 s against 38 s on 2 cores).
     assert main(["experiment", "sweep", "--episodes", "1", "--particles", "4", "--max-steps", "3",
                  "--probe-trials", "1", "--no-progress", "--seed", "3", "--set", "n_blocks=4",
-                 "--out", str(out)]) == 0
+                 "--set", "counterfactual_rows=0", "--out", str(out)]) == 0
     data = json.loads((out / "sweep.json").read_text())
     n = len(ex.sweep_settings("container"))
     assert len(data["rows"]) == n and data["summary"]["truths"] == n

@@ -23,7 +23,8 @@ def test_a_run_logs_each_episode_to_tensorboard(tmp_path, capsys):
 
     logdir, out = tmp_path / "tb", tmp_path / "run"
     assert main(["run", "--episodes", "2", "--particles", "4", "--max-steps", "6", "--seed", "3",
-                 "--no-progress", "--out", str(out), "--log-to", f"tensorboard:{logdir}"]) == 0
+                 "--counterfactual", "0", "--no-progress", "--out", str(out),
+                 "--log-to", f"tensorboard:{logdir}"]) == 0
     result = json.loads((out / "result.json").read_text())
     acc = EventAccumulator(str(logdir), size_guidance={"scalars": 0, "histograms": 0})
     acc.Reload()
@@ -50,6 +51,7 @@ def test_an_experiment_logs_each_run_to_its_own_folder(ray_cluster, tmp_path):
     logdir, out = tmp_path / "tb", tmp_path / "exp"
     assert main(["experiment", "likelihood", "--runs", "1", "--episodes", "2", "--particles", "4",
                  "--max-steps", "3", "--probe-trials", "2", "--no-progress", "--out", str(out),
+                 "--set", "counterfactual_rows=0",
                  "--log-to", f"tensorboard:{logdir}"]) == 0
     runs = sorted(p.relative_to(logdir).as_posix() for p in logdir.glob("*/run0"))
     summary = json.loads((out / "likelihood.json").read_text())
