@@ -58,8 +58,10 @@ def episodes() -> dict[str, tuple[dict, dict]]:
     """(result, sim counts of the experience pool) of one short episode per agent."""
     out = {}
     for name in NAMES:
+        # (the paper's loop: a snapshot's record is tests/coordinator/test_cli_run.py's and
+        # test_counterfactual.py's; here each agent's own record and properties)
         cfg = RunConfig(agent=name, particles=PARTICLES, episodes=1, max_steps=3, seed=2,
-                        particle_budget="fixed", n_objects=4)
+                        particle_budget="fixed", n_objects=4, counterfactual_rows=0)
         sims = {}
         pool = ShardPool(cfg.domain, {"n_blocks": cfg.n_blocks}, n_shards=0)
         try:

@@ -172,7 +172,7 @@ def test_the_arm_moves_in_the_particle_worlds_and_the_simulated_arm_reports_the_
     from sim_workers.robots.motion import ArmMotion
 
     cfg = RunConfig(domain="stack_and_push", particles=6, true_size=0.045, episodes=1, seed=1, max_steps=4,
-                    robot="ur5e", n_blocks=4)
+                    robot="ur5e", n_blocks=4, counterfactual_rows=0)   # the arm's worlds, not T's prior
     pool = ShardPool(cfg.domain, {"n_blocks": cfg.n_blocks, **cfg.options}, n_shards=0)
     s = Session(cfg, shard_pool=pool)
     reality = SimulatedReality(cfg.domain, {"n_blocks": cfg.n_blocks, **cfg.options}, s.props_of(s.truth_row()))

@@ -32,7 +32,8 @@ class Counting(RunObserver):
 
 
 def _run(observers=(), on_episode=None) -> dict:
-    cfg = RunConfig(particles=4, episodes=2, max_steps=2, seed=5, particle_budget="fixed", n_objects=2)
+    cfg = RunConfig(particles=4, episodes=2, max_steps=2, seed=5, particle_budget="fixed", n_objects=2,
+                    counterfactual_rows=0)     # what observers see, not T's prior
     pool = ShardPool(cfg.domain, {"n_blocks": cfg.n_blocks}, n_shards=0)
     try:
         return run(cfg, pool=pool, observers=observers, on_episode=on_episode)
