@@ -16,7 +16,9 @@ import select
 import signal
 import subprocess
 import sys
+import time
 from pathlib import Path
+from typing import Collection
 
 CLEAN = b"clean"
 
@@ -80,6 +82,33 @@ def watch(server: int, every_s: float = 1.0) -> int:
             except OSError:
                 pass
     return 0
+
+
+def sweep(root: int, exclude: Collection[int] = (), limit_s: float = 2.0) -> int:
+    """Kill every descendant of `root` but `exclude`, round after round until none is
+    left (or `limit_s` has passed); the number killed.
+
+    For a clean exit of a process whose own Ray may not have finished starting: a process
+    ``ray.init`` forks in the last moments before the exit can miss its parent-death signal
+    (it is set in the child after the fork, so a parent gone first leaves it orphaned for
+    good), and the workers and agents of a raylet killed that way outlive it by up to a
+    minute. Killed from the top down (the whole tree is listed before the first kill, so
+    an orphan is still found); a second round catches what a fork added meanwhile."""
+    if not sys.platform.startswith("linux") or not Path("/proc/self/stat").exists():
+        return 0
+    killed, deadline = 0, time.monotonic() + limit_s
+    while True:
+        left = {p: s for p, s in descendants(root).items() if p not in exclude}
+        if not left or time.monotonic() > deadline:
+            return killed
+        for pid, start in left.items():
+            if alive(pid, start):
+                try:
+                    os.kill(pid, signal.SIGKILL)
+                    killed += 1
+                except OSError:
+                    pass
+        time.sleep(0.05)
 
 
 def start_reaper() -> subprocess.Popen | None:

@@ -219,8 +219,9 @@ class ShardPools:
         else:
             # Still inside ray.init (3-5 s on 2 cores), which cannot be interrupted: not
             # waited for, so a SIGTERM at start-up ends the server at once (issue 38 row
-            # 11). The processes it started share the process's fate (Ray starts them with
-            # a parent-death signal), as after kill -9.
+            # 11). What it started so far is killed at the server's exit
+            # (coordinator.distributed.reaper.sweep): Ray's parent-death signal misses a
+            # process forked in the last moments.
             log.info("ray was still starting: not waited for")
 
 

@@ -337,16 +337,45 @@ def test_after_a_restart_a_session_is_restored_in_the_background(tmp_path):
         robot.close()
 
 
+def _group_members(pgid: int) -> list[int]:
+    """The live processes of process group `pgid` (a zombie has ended: reaping it is its
+    new parent's business, and an init that does not reap would keep it forever)."""
+    if not os.path.isdir("/proc"):                 # no /proc: the group as kill() sees it
+        try:
+            os.killpg(pgid, 0)
+        except ProcessLookupError:
+            return []
+        return [pgid]
+    members = []
+    for entry in os.scandir("/proc"):
+        if entry.name.isdigit():
+            try:
+                text = open(f"/proc/{entry.name}/stat").read()
+            except OSError:
+                continue
+            fields = text[text.rindex(")") + 2:].split()
+            if int(fields[2]) == pgid and fields[0] not in "ZX":
+                members.append(int(entry.name))
+    return members
+
+
 def _group_gone(pgid: int, timeout: float) -> bool:
     """Whether every process of the server's group (Ray's included) has ended."""
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
-        try:
-            os.killpg(pgid, 0)
-        except ProcessLookupError:
+        if not _group_members(pgid):
             return True
         time.sleep(0.1)
     return False
+
+
+def _group_listing(pgid: int) -> str:
+    """`ps`'s lines for the processes left in the group (what outlived the server)."""
+    import subprocess
+
+    out = subprocess.run(["ps", "-o", "pid,ppid,stat,etime,args", "-g", str(pgid)],
+                         capture_output=True, text=True, check=False)
+    return out.stdout
 
 
 def test_a_sigterm_during_the_start_up_restore_ends_the_server_at_once(tmp_path):
@@ -378,7 +407,8 @@ def test_a_sigterm_during_the_start_up_restore_ends_the_server_at_once(tmp_path)
             took = time.perf_counter() - t0
             # was 5.9 s while Ray started; with Ray up, Ray's own shutdown (~2.3 s) is most of it
             assert took < (8.0 if ray_up else 3.0), (ray_up, took, srv.log())
-            assert _group_gone(srv.proc.pid, 15.0), "Ray's processes outlived the server"
+            assert _group_gone(srv.proc.pid, 15.0), ("Ray's processes outlived the server", ray_up,
+                                                     _group_listing(srv.proc.pid))
             assert "Traceback" not in srv.log(), srv.log()
         srv = Server(db, token=None).start()
         from api.client import TMOCClient

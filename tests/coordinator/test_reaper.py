@@ -9,7 +9,7 @@ import time
 
 import pytest
 
-from coordinator.distributed.reaper import CLEAN, alive, descendants
+from coordinator.distributed.reaper import CLEAN, alive, descendants, sweep
 
 pytestmark = [pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc"),
               pytest.mark.slow]          # process trees of their own
@@ -66,3 +66,33 @@ def test_a_clean_exit_leaves_them_to_the_server():
     finally:
         for pid in kids:
             subprocess.run(["kill", "-9", str(pid)], capture_output=True)
+
+
+# A stand-in for a server whose Ray was still starting: a child that has a child of its
+# own, and a second child to spare (the reaper, in `tmoc serve`).
+TREE = ("import subprocess, sys, time; c = [sys.executable, '-c', 'import time; time.sleep(120)']; "
+        "subprocess.Popen([sys.executable, '-c', 'import subprocess, sys, time; "
+        "subprocess.Popen(' + repr(c) + '); time.sleep(120)']); subprocess.Popen(c); time.sleep(120)")
+
+
+def test_sweep_kills_the_whole_tree_but_what_it_is_told_to_spare():
+    server = subprocess.Popen([sys.executable, "-c", TREE])
+    try:
+        t0 = time.monotonic()
+        while len(descendants(server.pid)) < 3 and time.monotonic() - t0 < 10:
+            time.sleep(0.05)
+        kids = descendants(server.pid)
+        assert len(kids) == 3, kids
+        children = [p for p in kids if open(f"/proc/{p}/stat").read().split(") ")[1].split()[1]
+                    == str(server.pid)]
+        spared = max(children, key=lambda p: (len(descendants(p)) == 0, p))   # the childless one
+        assert len(descendants(spared)) == 0
+        assert sweep(server.pid, exclude={spared}) == 2                       # a child and its child
+        assert set(descendants(server.pid)) == {spared}
+        assert alive(spared, kids[spared])
+        assert sweep(server.pid, exclude={spared}) == 0
+    finally:
+        for pid in descendants(server.pid):
+            subprocess.run(["kill", "-9", str(pid)], capture_output=True)
+        server.kill()
+        server.wait(10)

@@ -142,7 +142,7 @@ def _episode_rows(domain: str, size: float, n: int = 8) -> list[np.ndarray]:
     from coordinator.run_config import RunConfig
 
     cfg = RunConfig(domain=domain, n_blocks=n, particles=2, true_size=size, known_properties=True, episodes=1,
-                    seed=0, max_steps=30)
+                    seed=0, max_steps=30, counterfactual_rows=0)     # the arm's reach, not T's prior
     pool = ShardPool(domain, {"n_blocks": n}, n_shards=0)
     s = Session(cfg, pool)
     reality = SimulatedReality(domain, {"n_blocks": n}, s.props_of(s.truth_row()))
