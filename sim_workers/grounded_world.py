@@ -26,6 +26,7 @@ from . import reach
 from . import trajectory as tr
 from .configuration import Configuration, quat_from_yaw, rotate_z, yaw_of
 from .domains import Domain
+from .reality_gap import as_perceived
 from .robots.acting import current_arm
 from .robots.motion import ArmMotion, link_boxes, link_poses
 
@@ -361,15 +362,18 @@ def act(world: GroundedWorld, domain, config: Configuration, believed: dict, act
     while the robot's, carried, pivoted in the fingers and failed). `run_as(traj, action)`
     gives the trajectory a real arm runs instead of the planned one (its retimed start of
     the action follows). Inside a probe trial with an arm (``robots.acting.arm_moves``) the
-    arm plans the action and the world moves its links along."""
-    key = domain.action_pose(believed, config, action)
-    traj = domain.action_trajectory(config, action, key)
-    carried = domain.held_object(domain.symbolic_state(config)) is not None
-    start = 0.0 if carried else domain.transit_end_time(config, action, key)
+    arm plans the action and the world moves its links along. Inside a probe trial with a
+    perception (``reality_gap.trial_perception``) the action is planned from the perceived
+    configuration, as the loop's robot plans it, and run in the true one."""
+    seen = as_perceived(domain, config)
+    key = domain.action_pose(believed, seen, action)
+    traj = domain.action_trajectory(seen, action, key)
+    carried = domain.held_object(domain.symbolic_state(seen)) is not None
+    start = 0.0 if carried else domain.transit_end_time(seen, action, key)
     arm = current_arm()
     motion = None
     if arm is not None:            # an arm does the trial's actions (robots.acting)
-        traj, start, motion = arm.plan(domain, config, believed, action, traj, start, key)
+        traj, start, motion = arm.plan(domain, seen, believed, action, traj, start, key)
     if run_as is not None:
         planned, traj = traj, run_as(traj, action)
         start = float(np.interp(start, planned[:, 0], traj[:, 0]))

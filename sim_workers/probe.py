@@ -17,7 +17,7 @@ from .domains import load
 from .grounded_world import act  # noqa: F401  (re-exported for the domains' probes)
 # The jitter lives with the reality gap; re-exported here for existing callers.
 from .reality_gap import (FRICTION_JITTER, PLACEMENT_JITTER_M, YAW_JITTER_RAD,  # noqa: F401
-                          jitter_planar, jittered_domain)
+                          jitter_planar, jittered_domain, trial_perception)
 from .robots.acting import ArmRefused, trial_arm
 
 
@@ -83,25 +83,34 @@ def _named(world_domain, true_size: float, believed_size: float, truth: dict | N
 def run_trial(action: str, true_size: float, believed_size: float, load_k: int,
               rng: np.random.Generator, n_blocks: int = 8, options: dict | None = None, *,
               domain: str, believed_density: float | None = None, truth: dict | None = None,
-              belief: dict | None = None, believed_kw: dict | None = None) -> bool:
+              belief: dict | None = None, believed_kw: dict | None = None,
+              perception_m: float = 0.0) -> bool:
     """One seeded trial; True when the action had its intended symbolic effect. The world
     is the domain with jittered friction; what the trial does is the domain's
     ``probe_trial`` (each domain knows how to set up its own actions). `truth` and
     `belief` (every property of L by name) reach a probe that takes them. A trial whose
-    context was not reached (the probe's None) counts as a failure here, as T* counts it."""
+    context was not reached (the probe's None) counts as a failure here, as T* counts it.
+    `perception_m` > 0: each action is planned from positions perceived with that std
+    (``reality_gap.trial_perception``), as the loop's noisy reality reports them."""
     return bool(_trial(action, true_size, believed_size, load_k, rng, n_blocks, options, domain=domain,
-                       believed_density=believed_density, truth=truth, belief=belief, believed_kw=believed_kw))
+                       believed_density=believed_density, truth=truth, belief=belief, believed_kw=believed_kw,
+                       perception_m=perception_m))
 
 
 def _trial(action: str, true_size: float, believed_size: float, load_k: int,
            rng: np.random.Generator, n_blocks: int = 8, options: dict | None = None, *,
            domain: str, believed_density: float | None = None, truth: dict | None = None,
-           belief: dict | None = None, believed_kw: dict | None = None) -> bool | None:
+           belief: dict | None = None, believed_kw: dict | None = None,
+           perception_m: float = 0.0) -> bool | None:
     """``run_trial`` with the probe's own answer: True, False, or None where the probe could
     not set its context up (e.g. a tower Y could not build)."""
     world_domain = jittered_domain(rng, domain=domain, n_blocks=n_blocks, **(options or {}))
     extra = {**(believed_kw or {}), **({} if believed_density is None else {"believed_density": believed_density})}
-    with trial_arm():             # the trial's own arm, where one acts (robots.acting)
+    # The perception's draws come from a child of the trial's generator: without perception
+    # (no child spawned) the trial's draws, and outcome, are those of before.
+    seen_rng = rng.spawn(1)[0] if perception_m > 0 else rng
+    # the trial's own arm, where one acts (robots.acting), and its perception
+    with trial_arm(), trial_perception(perception_m, seen_rng):
         try:
             if by_name(world_domain):
                 full_truth, full_belief = _named(world_domain, true_size, believed_size, truth, belief, extra)
@@ -120,7 +129,7 @@ def _answer(value) -> bool | None:
 
 
 def trial_by_names(action: str, load_k: int, rng: np.random.Generator, *, domain: str, n_blocks: int,
-                   options: dict | None, truth: dict, belief: dict) -> bool | None:
+                   options: dict | None, truth: dict, belief: dict, perception_m: float = 0.0) -> bool | None:
     """One seeded trial with the truth and Y's belief given by L's names alone (each a
     number per property): what a counterfactual simulation asks of a world
     (``coordinator.transition.counterfactual``); None where the probe could not reach the
@@ -133,14 +142,15 @@ def trial_by_names(action: str, load_k: int, rng: np.random.Generator, *, domain
     world = load(domain, **{**options, "n_blocks": n_blocks})
     if by_name(world):
         return _trial(action, math.nan, math.nan, load_k, rng, n_blocks, options, domain=domain,
-                      truth=dict(truth), belief=dict(belief))
+                      truth=dict(truth), belief=dict(belief), perception_m=perception_m)
     fields = {f.name for f in dataclasses.fields(world.spec)}
     options.update({k: float(v) for k, v in truth.items() if k != "size" and k in fields})
     takes = probe_keywords(world)
     believed_kw = {f"believed_{k}": float(v) for k, v in belief.items()
                    if k != "size" and ({"*", f"believed_{k}"} & takes)}
     return _trial(action, float(truth.get("size", math.nan)), float(belief.get("size", math.nan)),
-                  load_k, rng, n_blocks, options, domain=domain, believed_kw=believed_kw)
+                  load_k, rng, n_blocks, options, domain=domain, believed_kw=believed_kw,
+                  perception_m=perception_m)
 
 
 def probe_loads(domain_obj, action: str) -> range:
@@ -152,11 +162,13 @@ def probe_loads(domain_obj, action: str) -> range:
 def probe(action: str, true_size: float, believed_size: float | None = None, load_k: int = 4,
           trials: int = 20, seed: int = 0, n_blocks: int = 8, options: dict | None = None, *,
           domain: str, believed_density: float | None = None, truth: dict | None = None,
-          belief: dict | None = None, believed_kw: dict | None = None) -> ProbeResult:
+          belief: dict | None = None, believed_kw: dict | None = None,
+          perception_m: float = 0.0) -> ProbeResult:
     """Run `trials` seeded trials of `action` (one of the domain's ``probe_actions``).
 
     `believed_density` (kg/m^3) is what Y believes; it needs a domain whose Y uses mass
-    (its ``force_from_mass``; on by default here when a believed density is given)."""
+    (its ``force_from_mass``; on by default here when a believed density is given).
+    `perception_m`: Y reads object positions with that std (0: exactly)."""
     options = dict(options or {})
     if believed_density is not None:
         options = mass_in_y_options(domain, options)
@@ -173,7 +185,8 @@ def probe(action: str, true_size: float, believed_size: float | None = None, loa
     # One child generator per trial: trial t's outcome does not depend on the trial count.
     children = np.random.default_rng(seed).spawn(trials)
     wins = sum(run_trial(action, true_size, believed, load_k, rng, n_blocks, options, domain=domain,
-                         believed_density=believed_density, truth=truth, belief=belief, believed_kw=believed_kw)
+                         believed_density=believed_density, truth=truth, belief=belief, believed_kw=believed_kw,
+                         perception_m=perception_m)
                for rng in children)
     fields = {f.name: getattr(world.spec, f.name) for f in dataclasses.fields(world.spec)}
     true_density = fields.get("density") if believed_density is not None or "density" in options else None

@@ -15,12 +15,14 @@ itself goes on from the true state.
 from __future__ import annotations
 
 import dataclasses
+from contextlib import contextmanager
+from contextvars import ContextVar
 from dataclasses import dataclass
-from typing import ClassVar
+from typing import ClassVar, Iterator
 
 import numpy as np
 
-from .configuration import quat_from_yaw
+from .configuration import Configuration, quat_from_yaw
 from .domains import load
 
 PLACEMENT_JITTER_M = 0.002   # std of block placement, clipped at 2 std
@@ -162,3 +164,32 @@ def perceived_planar(rng: np.random.Generator, objects: np.ndarray, rows,
     if perception_m > 0 and rows:
         objects[rows, :2] += rng.normal(0.0, perception_m, (len(rows), 2))
     return objects
+
+
+# A probe trial's perception (``trial_perception``): the std and the trial's own generator.
+_PERCEPTION: ContextVar[tuple[float, np.random.Generator] | None] = ContextVar("tmoc_trial_perception",
+                                                                               default=None)
+
+
+@contextmanager
+def trial_perception(perception_m: float, rng: np.random.Generator) -> Iterator[None]:
+    """Within it, an action a probe trial runs (``grounded_world.act``) is planned, as the
+    loop's robot plans it, from a perceived configuration: each movable object's planar
+    position plus N(0, perception_m^2) per axis, drawn from `rng` afresh for each action
+    (each observation of a real robot is perceived anew). The world acts in the truth."""
+    token = _PERCEPTION.set((float(perception_m), rng) if perception_m > 0 else None)
+    try:
+        yield
+    finally:
+        _PERCEPTION.reset(token)
+
+
+def as_perceived(domain, config: Configuration) -> Configuration:
+    """`config` as the current probe trial's robot perceives it (``trial_perception``);
+    `config` itself outside one or with a perception of 0."""
+    current = _PERCEPTION.get()
+    if current is None:
+        return config
+    perception_m, rng = current
+    return Configuration(config.robot.copy(),
+                         perceived_planar(rng, config.objects, domain.jittered_objects, perception_m))

@@ -78,6 +78,10 @@ def register(subparsers) -> None:
                         "plans each action's joint path from where the last one left it and its links "
                         "move in the world, tracked as the simulated arm reality tracks it; an action it "
                         "cannot do fails the trial")
+    p.add_argument("--perception-sigma", type=float, default=0.0, metavar="M",
+                   help="Y reads the objects' planar positions with N(0, M^2) per axis, drawn afresh "
+                        "for each action, as `tmoc run`'s noisy reality reports them "
+                        "(its --perception-sigma); default 0: exactly")
     p.add_argument("--trials", type=int, default=20, metavar="N", help="number of trials (default 20)")
     p.add_argument("--seed", type=int, default=0, metavar="SEED", help="random seed (default 0)")
     p.add_argument("--json", action="store_true", help="print one JSON object instead of a line")
@@ -150,6 +154,8 @@ def run(args: argparse.Namespace) -> int:
         raise UsageError(f"--trials: {args.trials} must be at least 1")
     if args.seed < 0:
         raise UsageError(f"--seed: {args.seed} must not be negative")
+    if not (math.isfinite(args.perception_sigma) and 0.0 <= args.perception_sigma <= 0.05):
+        raise UsageError(f"--perception-sigma: {args.perception_sigma!r} must be within [0, 0.05] m")
 
     from coordinator.domains import checked_options, options_of
 
@@ -254,7 +260,7 @@ def run(args: argparse.Namespace) -> int:
             result = probe(args.action, true_size, believed, load_k=args.load, trials=args.trials,
                            seed=args.seed, n_blocks=n_blocks, domain=args.domain, options=options,
                            believed_density=believed_density, truth=full_truth, belief=full_belief,
-                           believed_kw=believed_kw)
+                           believed_kw=believed_kw, perception_m=args.perception_sigma)
         doing.check_used(args.domain)
     except ValueError as exc:
         if str(exc).startswith("robot:"):
@@ -264,7 +270,8 @@ def run(args: argparse.Namespace) -> int:
         raise
     if args.json:
         out = {"domain": args.domain, **result.to_dict(), "seed": args.seed, "n_blocks": n_blocks,
-               "engine": engine, "truth": full_truth, "belief": full_belief, "robot": args.robot}
+               "engine": engine, "truth": full_truth, "belief": full_belief, "robot": args.robot,
+               "perception_sigma": args.perception_sigma}
         if not sized:
             out["true_size"] = out["believed_size"] = None
         print(json.dumps(out, sort_keys=True))
@@ -284,5 +291,6 @@ def run(args: argparse.Namespace) -> int:
     print(f"{args.domain} {args.action}: {result.successes}/{result.trials} succeeded, "
           f"success rate {result.success_rate:.3f} ({what}{load}{dens}, seed {args.seed}"
           f"{', engine ' + engine if args.engine else ''}"
-          f"{', robot ' + args.robot if args.robot != 'gripper' else ''})")
+          f"{', robot ' + args.robot if args.robot != 'gripper' else ''}"
+          f"{f', perception {args.perception_sigma * 1000:g} mm' if args.perception_sigma else ''})")
     return 0

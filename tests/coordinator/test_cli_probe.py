@@ -37,6 +37,25 @@ def test_an_option_reaches_the_probed_world(capsys):
     assert json.loads(capsys.readouterr().out) == same           # the default, given
 
 
+def test_a_perception_error_reaches_y_and_only_y(capsys):
+    """--perception-sigma: each action is planned from positions perceived with that std
+    while the world acts in the truth. 0 is the exact probe of before, draw for draw; a
+    camera off by centimetres lands the fingers on the blocks; a seed repeats its answer."""
+    args = BASE + ["--action", "pickup", "--trials", "6", "--json"]
+    runs = {}
+    for sigma in ("0", "0.001", "0.03", "0.03"):
+        assert main(args + ["--perception-sigma", sigma]) == 0
+        runs.setdefault(sigma, []).append(json.loads(capsys.readouterr().out))
+    assert main(args) == 0
+    exact = json.loads(capsys.readouterr().out)
+    assert exact["perception_sigma"] == 0.0 and runs["0"][0] == exact
+    assert runs["0.001"][0]["successes"] == 6                  # 1 mm: inside the opening's margin
+    assert runs["0.03"][0]["successes"] <= 3, runs["0.03"]    # 3 cm: the fingers meet the blocks
+    assert runs["0.03"][0] == runs["0.03"][1]
+    assert main(BASE + ["--action", "pickup", "--trials", "1", "--perception-sigma", "0.002"]) == 0
+    assert "perception 2 mm" in capsys.readouterr().out
+
+
 def test_push_with_load_same_seed_same_answer(capsys):
     args = BASE + ["--action", "push", "--load", "2", "--trials", "2", "--json"]
     assert main(args) == 0
@@ -61,6 +80,9 @@ def test_push_with_load_same_seed_same_answer(capsys):
     (["--action", "stack", "--seed", "-1"], "--seed"),
     (["--action", "push", "--option", "no_such=1"], "--option"),
     (["--action", "push", "--option", "push_speed=fast"], "--option"),
+    (["--action", "pickup", "--perception-sigma", "-0.001"], "--perception-sigma"),
+    (["--action", "pickup", "--perception-sigma", "nan"], "--perception-sigma"),
+    (["--action", "pickup", "--perception-sigma", "0.5"], "--perception-sigma"),
 ])
 def test_bad_input_names_the_flag_and_exits_2(capsys, extra, flag):
     # Later flags override BASE's (argparse keeps the last value).
@@ -91,7 +113,8 @@ def test_help_lists_the_flags(capsys):
         main(["probe", "--help"])
     assert exc.value.code == 0
     out = capsys.readouterr().out
-    for flag in ("--domain", "--action", "--true-size", "--believed-size", "--load", "--trials", "--seed", "--json"):
+    for flag in ("--domain", "--action", "--true-size", "--believed-size", "--load", "--trials", "--seed", "--json",
+                 "--perception-sigma"):
         assert flag in out
 
 
