@@ -45,8 +45,9 @@ def register(subparsers) -> None:
                    help="domain to probe (default: container)")
     p.add_argument("--action", required=True, metavar="ACTION",
                    help="the domain's probe actions (container: pickup, stack, push; "
-                        "stack_and_push: pickup, stack, push, stand, and built_stack, built_push: "
-                        "onto / of a tower the agent's own actions built, as T* probes it)")
+                        "stack_and_push: pickup, stack, push, stand, built_stack, built_push: "
+                        "onto / of a tower the agent's own actions built, as T* probes it, and "
+                        "rail_pickup: a block lying on the rail with --load 0-2 beside it)")
     p.add_argument("--truth", action="append", default=None, metavar="NAME=VALUE[,NAME=VALUE]",
                    help="the probed world's hidden truth by the names of L (`tmoc domains`), e.g. "
                         "size=0.045 or friction=0.6 (default: the domain's default truth)")

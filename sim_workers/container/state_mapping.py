@@ -15,6 +15,7 @@ import math
 import numpy as np
 
 from ..configuration import Configuration, quat_from_yaw, rotate_z, yaw_of
+from ..blocks.hand import finger_room, grasp_opening
 from ..blocks.hand import grasp_yaw as _grasp_yaw, grip_height as _grip_height, in_hand as _in_hand
 from ..blocks.terms import block_index, parse_action  # noqa: F401  (used as state_mapping.*)
 from .columns import LEFT, column_of, column_x, side_of, tallest_pile, two_columns
@@ -81,6 +82,18 @@ def symbolic_state(spec: ContainerSpec, config: Configuration) -> frozenset[str]
     return frozenset(atoms)
 
 
+def _pickup_opening(spec: ContainerSpec, config: Configuration, i: int, s):
+    """The grasp's opening for block i at believed side(s) `s` (``blocks.hand.grasp_opening``):
+    the other blocks (each reaching the prior's largest half diagonal) and the tray (its
+    outer half diagonal) bound the room."""
+    if spec.grasp_clearance <= 0.0:
+        return spec.open_ratio * s
+    reach = float(np.sqrt(0.5) * spec.prior_high)
+    others = {1 + j: reach for j in range(spec.n_blocks)}
+    others[0] = float(np.hypot(*spec.outer_half))
+    return grasp_opening(spec, s, finger_room(spec, config, 1 + i, others))
+
+
 def action_pose(spec: ContainerSpec, sizes: np.ndarray, config: Configuration, action: str) -> np.ndarray:
     """Y(L, s, a): the key pose (x, y, z, yaw, opening) of `action` under believed sizes."""
     name, args = parse_action(action)
@@ -89,7 +102,7 @@ def action_pose(spec: ContainerSpec, sizes: np.ndarray, config: Configuration, a
         p = config.objects[1 + i]
         s = sizes[i]
         z = max(_grip_height(spec, s), spec.MIN_GRASP_Z)
-        return np.array([p[0], p[1], z, _grasp_yaw(p[3:]), spec.open_ratio * s])
+        return np.array([p[0], p[1], z, _grasp_yaw(p[3:]), _pickup_opening(spec, config, i, s)])
     if name == "stack":
         i = block_index(spec, args[1])
         c = config.objects[0]
@@ -132,7 +145,7 @@ def action_poses(spec: ContainerSpec, sizes: np.ndarray, config: Configuration, 
         out = np.empty((n, 5))
         out[:, 0], out[:, 1], out[:, 3] = p[0], p[1], _grasp_yaw(p[3:])
         out[:, 2] = np.maximum(_grip_height(spec, s), spec.MIN_GRASP_Z)
-        out[:, 4] = spec.open_ratio * s
+        out[:, 4] = _pickup_opening(spec, config, i, s)
         return out
     if name == "stack":
         i = block_index(spec, args[1])

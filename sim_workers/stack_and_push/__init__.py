@@ -334,8 +334,11 @@ class StackAndPushDomain(PhysicsDomain):
     def probe_loads(self, action: str) -> range:
         """Tower heights a probe of `action` accepts (``sim_workers.probe.probe`` checks
         them): a stack onto 0..n-1 (a block must stay free; 0 is the empty start site,
-        which ``t_star_probe_jobs`` asks for), a push or stand of 1..n."""
+        which ``t_star_probe_jobs`` asks for), a push or stand of 1..n; for
+        ``rail_pickup`` the blocks lying beside it on the rail, 0..2."""
         n = self.spec.n_blocks
+        if action == "rail_pickup":          # the blocks lying beside it on the rail
+            return range(min(probes.RAIL_NEIGHBOURS, n - 1) + 1)
         return range(n) if action.removeprefix("built_") == "stack" else range(1, n + 1)
 
     # -- T* (what `tmoc experiment` compares the learned T against) -------------------

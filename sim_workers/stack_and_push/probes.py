@@ -16,7 +16,12 @@ from ..engines.registry import make_world
 from ..grounded_world import GroundedWorld, act
 from ..reality_gap import PLACEMENT_JITTER_M, YAW_JITTER_RAD, action_jitter, executed, jitter_planar
 
-PROBE_ACTIONS = ("pickup", "stack", "push", "stand", "built_stack", "built_push")
+PROBE_ACTIONS = ("pickup", "stack", "push", "stand", "built_stack", "built_push", "rail_pickup")
+# `rail_pickup`: a block lying on the rail, where a topple or a failed push leaves blocks,
+# somewhere between the start site and the goal and turned by up to this much
+RAIL_PICKUP_X = (0.10, 0.35)
+RAIL_PICKUP_YAW = 0.35
+RAIL_NEIGHBOURS = 2      # at most, beside it along the rail
 STAND_S = 2.0            # how long a tower is left alone in the `stand` probe
 TOWER_JITTER_M = PLACEMENT_JITTER_M / 2
 # `built_*` probes build their tower with the agent's own actions; a build that fails
@@ -69,6 +74,8 @@ def probe_trial(domain, action: str, true_size: float, believed_size: float, loa
     if action.startswith("built_"):
         return built_probe_trial(domain, action.removeprefix("built_"), true_size, believed_size, load_k,
                                  rng, believed_density)
+    if action == "rail_pickup":
+        return rail_pickup_trial(domain, true_size, believed_size, load_k, rng, believed_density)
     if action == "stack" and not 0 <= load_k < n:
         raise ValueError(f"load: stack onto a tower of {load_k} needs a free block (0..{n - 1})")
     if action in ("push", "stand") and not 1 <= load_k <= n:
@@ -153,3 +160,42 @@ def built_probe_trial(domain, action: str, true_size: float, believed_size: floa
             return False
         out = act(world, domain, out.configuration, believed, f"stack(r,{b},tower)")
         return tower_atoms(load_k + 1) <= out.state and "hand_empty(r)" in out.state
+
+
+def rail_configuration(domain, sizes: np.ndarray, neighbours: int, rng: np.random.Generator) -> Configuration:
+    """The supply row (jittered) with b1 lying upright on the rail at a random place,
+    offset and yaw, and `neighbours` more blocks (b2, b3) beside it along the rail, each a
+    little beyond touching (as a toppled tower leaves them)."""
+    spec = domain.spec
+    config = domain.initial_configuration({"block_sizes": sizes})
+    objects = jitter_planar(rng, config.objects, range(spec.n_blocks))
+    s = float(sizes[0])
+    play = max(0.0, spec.rail_half_gap - s / 2)
+    x = rng.uniform(*RAIL_PICKUP_X)
+    objects[0, :3] = [x, rng.uniform(-play, play), s / 2]
+    objects[0, 3:] = quat_from_yaw(rng.uniform(-RAIL_PICKUP_YAW, RAIL_PICKUP_YAW))
+    for k in range(neighbours):
+        side = 1.0 if k % 2 == 0 else -1.0
+        dx = s * (np.sqrt(0.5) + 0.5) + rng.uniform(0.0, 0.02)
+        objects[1 + k, :3] = [x + side * dx, rng.uniform(-play, play), float(sizes[1 + k]) / 2]
+        objects[1 + k, 3:] = quat_from_yaw(rng.uniform(-RAIL_PICKUP_YAW, RAIL_PICKUP_YAW))
+    return domain.place(Configuration(config.robot, objects), {"block_sizes": sizes})
+
+
+def rail_pickup_trial(domain, true_size: float, believed_size: float, load_k: int,
+                      rng: np.random.Generator, believed_density: float | None = None) -> bool | None:
+    """`rail_pickup`: b1 picked from the rail with `load_k` (0..2) blocks lying beside it;
+    None where the scene did not settle with b1 read on the rail."""
+    n = domain.spec.n_blocks
+    if not 0 <= load_k <= min(RAIL_NEIGHBOURS, n - 1):
+        raise ValueError(f"load: {load_k} neighbours on the rail is outside 0..{min(RAIL_NEIGHBOURS, n - 1)}")
+    sizes = np.full(n, true_size)
+    truth = {"block_sizes": sizes}
+    believed = {"block_sizes": np.full(n, believed_size),
+                "density": domain.spec.density if believed_density is None else float(believed_density)}
+    with make_world(domain) as world:
+        config = world.reset(rail_configuration(domain, sizes, load_k, rng), truth)
+        if "is_in(b1,rail)" not in domain.symbolic_state(config):
+            return None
+        out = act(world, domain, config, believed, "pickup(r,b1,rail)")
+        return "is_holding(r,b1)" in out.state

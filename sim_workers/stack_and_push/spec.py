@@ -69,6 +69,9 @@ class StackAndPushSpec:
     friction_anchor: bool = True    # Bullet's positional friction on the blocks (no creep)
     # Y's rules in terms of the believed size s.
     open_ratio: float = 1.15
+    # ... widened to s + 2 grasp_clearance where the other objects leave the fingers room
+    # (sim_workers.blocks.hand.grasp_opening: the perception error a grasp tolerates); 0: off.
+    grasp_clearance: float = 0.0
     grip_depth: float = 0.010       # the least depth: fingertips this far below the believed top
     grip_depth_ratio: float = 1.0 / 3.0   # ... or this share of the believed size if deeper
     release_clearance: float = 0.004

@@ -13,6 +13,7 @@ import numpy as np
 
 from ..configuration import Configuration, quat_from_yaw
 from ..blocks.hand import UPRIGHT_COS, upright  # noqa: F401  (used as state_mapping.*)
+from ..blocks.hand import finger_room, grasp_opening
 from ..blocks.hand import grasp_yaw as _grasp_yaw, grip_height as _grip_height, in_hand as _in_hand
 from ..blocks.terms import block_index, parse_action  # noqa: F401  (used as state_mapping.*)
 from .spec import StackAndPushSpec
@@ -177,6 +178,15 @@ def release_opening(spec: StackAndPushSpec, s):
         else min(spec.max_opening, RELEASE_RATIO * s)
 
 
+def _pickup_opening(spec: StackAndPushSpec, config: Configuration, i: int, s):
+    """The grasp's opening for block i at believed side(s) `s` (``blocks.hand.grasp_opening``):
+    the other blocks, each reaching the prior's largest half diagonal, bound the room."""
+    if spec.grasp_clearance <= 0.0:
+        return spec.open_ratio * s
+    reach = float(np.sqrt(0.5) * spec.prior_high)
+    return grasp_opening(spec, s, finger_room(spec, config, i, {j: reach for j in range(spec.n_blocks)}))
+
+
 def _rear_half(s: float, quat: np.ndarray) -> float:
     """How far a cube of side s, turned by its folded yaw, reaches behind its centre."""
     y = _grasp_yaw(quat)
@@ -191,7 +201,7 @@ def action_pose(spec: StackAndPushSpec, sizes: np.ndarray, config: Configuration
         i = block_index(spec, args[1])
         s = sizes[i]
         z = max(_support(spec, obj, i, s) + _grip_height(spec, s), 0.003)
-        return np.array([obj[i, 0], obj[i, 1], z, _grasp_yaw(obj[i, 3:]), spec.open_ratio * s])
+        return np.array([obj[i, 0], obj[i, 1], z, _grasp_yaw(obj[i, 3:]), _pickup_opening(spec, config, i, s)])
     _, chain = block_labels(spec, config)
     if name == "stack":
         i = block_index(spec, args[1])
@@ -233,7 +243,7 @@ def action_poses(spec: StackAndPushSpec, sizes: np.ndarray, config: Configuratio
         s = sizes[:, i]
         out[:, 0], out[:, 1], out[:, 3] = obj[i, 0], obj[i, 1], _grasp_yaw(obj[i, 3:])
         out[:, 2] = np.maximum(_support(spec, obj, i, s) + _grip_height(spec, s), 0.003)
-        out[:, 4] = spec.open_ratio * s
+        out[:, 4] = _pickup_opening(spec, config, i, s)
         return out
     _, chain = block_labels(spec, config)
     if name == "stack":

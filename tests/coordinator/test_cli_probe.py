@@ -56,6 +56,20 @@ def test_a_perception_error_reaches_y_and_only_y(capsys):
     assert "perception 2 mm" in capsys.readouterr().out
 
 
+def test_a_block_lying_on_the_rail_is_probed_with_its_neighbours(capsys):
+    """stack_and_push's rail_pickup: a block a topple left on the rail, --load 0-2 more
+    lying beside it; other loads are refused naming --load."""
+    args = ["probe", "--domain", "stack_and_push", "--action", "rail_pickup", "--true-size", "0.045",
+            "--trials", "3", "--seed", "1", "--json"]
+    for k in ("0", "2"):
+        assert main(args + ["--load", k]) == 0
+        data = json.loads(capsys.readouterr().out)
+        assert data["action"] == "rail_pickup" and data["load"] == int(k) and data["successes"] == 3
+    assert main(args + ["--load", "3"]) == 2
+    err = capsys.readouterr().err
+    assert "--load" in err and "0..2" in err
+
+
 def test_push_with_load_same_seed_same_answer(capsys):
     args = BASE + ["--action", "push", "--load", "2", "--trials", "2", "--json"]
     assert main(args) == 0
