@@ -108,7 +108,8 @@ def _with_robot(fields: dict, name: str | None) -> dict:
 
 
 def _run_fields(items: list[str] | None) -> dict:
-    """``--set KEY=VALUE`` items as RunConfig fields (values read as JSON, else text)."""
+    """``--set KEY=VALUE`` items as RunConfig fields (values read as JSON, else text);
+    ``--set options.KEY=VALUE`` sets one domain option (as `tmoc run --option KEY=VALUE`)."""
     from ..run_config import RunConfig
     from .run import parse_options
 
@@ -116,6 +117,11 @@ def _run_fields(items: list[str] | None) -> dict:
         fields = parse_options(items)
     except UsageError as exc:
         raise UsageError(str(exc).replace("--option", "--set", 1)) from None
+    options = {k.removeprefix("options."): fields.pop(k) for k in [k for k in fields if k.startswith("options.")]}
+    if options:
+        if not isinstance(fields.get("options", {}), dict):
+            raise UsageError("--set options: expected options.KEY=VALUE")
+        fields["options"] = {**fields.get("options", {}), **options}
     unknown = sorted(set(fields) - set(RunConfig.model_fields))
     if unknown:
         raise UsageError(f"--set: {unknown[0]} is not a RunConfig field (tmoc run --print-config lists them)")

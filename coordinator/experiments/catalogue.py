@@ -178,7 +178,10 @@ def run_config(spec: Spec, k: int, r: int) -> RunConfig:
                                k if s.seed_index is None else s.seed_index, r),
               "particle_budget": spec.particle_budget, "min_particles": spec.min_particles}
     fields.update(spec.run_fields)
+    options = {**spec.run_fields.get("options", {}), **s.overrides.get("options", {})}
     fields.update(s.overrides)
+    if options:                          # a setting's own options add to `--set options.K=V`
+        fields["options"] = options
     for key in ("engine", "reality_engine"):
         if getattr(spec, key) is not None:
             fields.setdefault(key, getattr(spec, key))

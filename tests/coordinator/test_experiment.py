@@ -96,6 +96,28 @@ def test_t_star_is_probed_for_the_runs_object_count():
     assert len(ex.probe_jobs(3, "container")) < len(ex.probe_jobs(8, "container"))
 
 
+def test_set_options_key_sets_one_domain_option_and_a_setting_adds_its_own():
+    """`--set options.KEY=VALUE` (as `tmoc run --option`): a domain option for every run;
+    a setting's own options (the sweep's density settings) are added to it, not replace it."""
+    from coordinator.commands import UsageError
+    from coordinator.commands.experiment import _run_fields
+    from coordinator.experiments.catalogue import run_config
+    from coordinator.experiments.spec import Setting
+
+    fields = _run_fields(["options.grasp_clearance=0.006", "seed=3", "options.force_sigma=0.5"])
+    assert fields == {"seed": 3, "options": {"grasp_clearance": 0.006, "force_sigma": 0.5}}
+    with pytest.raises(UsageError, match="--set"):
+        _run_fields(['options={"grasp_clearance": 0.006}'])
+    spec = ex.Spec(name="sweep", runs=1, episodes=1, particles=4, domain="stack_and_push",
+                   run_fields={"options": {"grasp_clearance": 0.006}})
+    spec.settings = [Setting("dense", "dense", {"agent": "tmoc",
+                                                "options": {"density": 2000.0, "force_from_mass": True}}),
+                     Setting("plain", "plain", {"agent": "tmoc", "true_size": 0.04})]
+    assert run_config(spec, 0, 0).options == {"grasp_clearance": 0.006, "density": 2000.0,
+                                              "force_from_mass": True}
+    assert run_config(spec, 1, 0).options == {"grasp_clearance": 0.006}
+
+
 def test_true_T_is_estimated_once_and_cached(tmp_path):
     calls = []
 
