@@ -253,6 +253,11 @@ class RunConfig(BaseModel):
     # neighbour is within the fingers' reach) judged by the particle worlds with the pose
     # rule "success" (issue 40; docs/LOOP.md, "Y's alternatives"). Off: Y's pose alone.
     pose_alternatives: bool = True
+    # Y's grasp clearance per side (m) in a domain with the option ``grasp_clearance`` (the
+    # block worlds: sim_workers.blocks.hand.grasp_opening): the opening widens to s + 2c
+    # where the other objects leave room. None: the domain's default (stack-and-push 6 mm,
+    # 3 sigma of the camera; the container 0); stored settings from before it: 0.
+    grasp_clearance: float | None = Field(None, ge=0.0, le=0.02)
     # How the planner chooses among plans of equal expected utility, for a task half that
     # declares "trials" in ``transition_extras`` (the block worlds): "first", clingo's first
     # optimum (every run before the field); "evidence", the plan whose stacks and pushes
@@ -277,6 +282,14 @@ class RunConfig(BaseModel):
         from coordinator.domains import checked_options, options_of
 
         self.options, phys = checked_options(self.domain, dict(self.options), self.n_blocks)
+        if self.grasp_clearance is not None:
+            if "grasp_clearance" not in options_of(phys):
+                raise ValueError(f"grasp_clearance: the {self.domain} domain has no grasp clearance")
+            given = self.options.get("grasp_clearance", self.grasp_clearance)
+            if given != self.grasp_clearance:
+                raise ValueError(f"grasp_clearance: {self.grasp_clearance} disagrees with "
+                                 f"options.grasp_clearance {given}")
+            self.options["grasp_clearance"] = float(self.grasp_clearance)
         self.n_blocks = int(phys.n_objects)
         L = phys.L
         self._size_in_L = "size" in L.names
@@ -491,6 +504,16 @@ def stored_run_config(fields: dict) -> RunConfig:
     fields.setdefault("pose_alternatives", False)
     # Before the tie-break by evidence: clingo's first optimum.
     fields.setdefault("tie_break", "first")
+    # Before Y's grasp clearance: the 1.15 sides' opening, in a domain that has the option.
+    if "grasp_clearance" not in fields and "grasp_clearance" not in (fields.get("options") or {}):
+        from coordinator.domains import load, options_of
+
+        try:
+            has = "grasp_clearance" in options_of(load(fields.get("domain", DEFAULT_DOMAIN)).physics)
+        except Exception:  # noqa: BLE001 - an unknown domain: RunConfig names it below
+            has = False
+        if has:
+            fields["grasp_clearance"] = 0.0
     # Before issue 24's filter: the plain Gaussian, sensor sigma, fixed jitter, no lock-in.
     for key, before in PRE_ISSUE_24_FILTER.items():
         fields.setdefault(key, before)

@@ -126,11 +126,12 @@ def test_a_guarded_move_caps_the_wrist_force_in_mujoco():
 @pytest.mark.parametrize("name", ["container", "stack_and_push"])
 def test_a_pickup_holds_at_the_true_size_and_misses_far_off_it(name, engine):
     """The first probe claims of docs/BUILTIN_DOMAINS.md, in both engines, small: 4 seeded
-    trials each. A belief 25 % small lands the fingers on the block; one 25 % large still
+    trials each, at the 1.15 sides' opening (grasp_clearance 0, stack-and-push's default
+    before it). A belief 25 % small lands the fingers on the block; one 25 % large still
     grasps (the grip deepens with the believed size); one 1.67 x too large closes above it."""
     def successes(true: float, believed: float) -> int:
         return probe("pickup", true, believed, trials=4, seed=1, n_blocks=4, domain=name,
-                     options={"engine": engine}).successes
+                     options={"engine": engine, "grasp_clearance": 0.0}).successes
 
     assert successes(0.045, 0.045) == 4 and successes(0.045, 0.045 * 0.75) == 0
     assert successes(0.045, 0.045 * 1.25) == 4 and successes(0.030, 0.050) == 0

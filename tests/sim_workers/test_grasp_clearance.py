@@ -1,7 +1,8 @@
 """The grasp's clearance under perception error (issue 37): `grasp_clearance` widens Y's
 pre-grasp opening to s + 2 c where the other objects leave the fingers room, never below
 the 1.15 sides of before and never into a neighbour; off (0) it is Y of before, bit for
-bit. Real pybullet worlds for the physics."""
+bit. Stack-and-push's default is 6 mm, the container's 0; stored settings from before it
+keep 0. Real pybullet worlds for the physics."""
 from __future__ import annotations
 
 import numpy as np
@@ -21,7 +22,7 @@ def _pickup(domain, config, name: str, s: float) -> np.ndarray:
 
 @pytest.mark.parametrize("domain_name", ["container", "stack_and_push"])
 def test_off_it_is_y_of_before_and_on_it_widens_where_there_is_room(domain_name):
-    off, on = load(domain_name), load(domain_name, grasp_clearance=C)
+    off, on = load(domain_name, grasp_clearance=0.0), load(domain_name, grasp_clearance=C)
     n = off.spec.n_blocks
     for s in (0.032, 0.045, 0.059):
         config = off.initial_configuration({"block_sizes": np.full(n, s)})
@@ -92,8 +93,21 @@ def _holds_with_error(domain, s: float, error: float) -> bool:
 def test_a_perception_error_the_old_opening_lands_a_finger_on_is_held_with_the_clearance():
     # 45 mm at 1.15 sides: 3.4 mm of clearance per side, held for errors up to 4 mm
     # (measured in 1 mm steps: -4..+4 mm; with 6 mm of clearance -6..+6 mm).
-    before, after = load("stack_and_push"), load("stack_and_push", grasp_clearance=C)
+    before, after = load("stack_and_push", grasp_clearance=0.0), load("stack_and_push", grasp_clearance=C)
     assert _holds_with_error(before, 0.045, 0.0) and _holds_with_error(after, 0.045, 0.0)
     for error in (-0.005, 0.005):
         assert not _holds_with_error(before, 0.045, error), error
         assert _holds_with_error(after, 0.045, error), error
+
+
+def test_the_defaults_and_stored_settings_from_before_it():
+    from coordinator.run_config import RunConfig, stored_run_config
+
+    assert load("stack_and_push").spec.grasp_clearance == C and load("container").spec.grasp_clearance == 0.0
+    assert RunConfig(domain="stack_and_push").grasp_clearance is None          # the domain's own
+    assert RunConfig(domain="stack_and_push", grasp_clearance=0.0).options == {"grasp_clearance": 0.0}
+    old = RunConfig(domain="stack_and_push").model_dump()
+    old.pop("grasp_clearance")
+    assert stored_run_config(old).options["grasp_clearance"] == 0.0
+    with pytest.raises(ValueError, match="grasp_clearance"):
+        RunConfig(domain="stack_and_push", grasp_clearance=0.004, options={"grasp_clearance": 0.006})

@@ -152,7 +152,9 @@ def test_a_stack_onto_a_tower_keeps_every_outcome():
     assert list(reduced["states"]) == list(full["states"])
     np.testing.assert_allclose(_likelihood_channels(domain, reduced["measurements"]),
                                _likelihood_channels(domain, full["measurements"]), rtol=0, atol=1e-8)
-    assert np.nanmax(np.abs(reduced["measurements"] - full["measurements"])) < 1e-4
+    # Readings the likelihood does not weigh agree to half a millimetre (0.28 mm with the
+    # grasp clearance's wider opening, under 0.1 mm before it); the weighed ones above to 1e-8.
+    assert np.nanmax(np.abs(reduced["measurements"] - full["measurements"])) < 5e-4
     with GroundedWorld(domain, leave_out=True) as world:
         world.reset(config, truth)
         world.execute(traj, stack, start_time=t0)
