@@ -172,6 +172,14 @@ def finger_room(spec, config: Configuration, row: int, others: dict[int, float])
     return room
 
 
+def pickup_opening(spec, config: Configuration, row: int, s, others: dict[int, float]):
+    """``grasp_opening`` for the object in `row`, its room from `others` (``finger_room``);
+    ``open_ratio`` * s without a clearance, the room not computed."""
+    if float(getattr(spec, "grasp_clearance", 0.0)) <= 0.0:
+        return spec.open_ratio * s
+    return grasp_opening(spec, s, finger_room(spec, config, row, others))
+
+
 def grasp_opening(spec, s, room: float):
     """Y's pre-grasp opening for believed side(s) `s`: ``open_ratio`` sides, widened to
     s + 2 ``grasp_clearance`` where the scene leaves the fingers `room` (``finger_room``),
@@ -183,7 +191,7 @@ def grasp_opening(spec, s, room: float):
     45 mm block at 1.15 sides holds for errors up to 4 mm; at 57 mm open, up to 6 mm).
     Under the runs' 2 mm camera the 1.15 sides miss 1-5 % of pickups (the small end
     worst); a clearance of 3 sigma (6 mm) per side misses about 0.3 %."""
-    base = spec.open_ratio * np.asarray(s, dtype=np.float64) if np.ndim(s) else spec.open_ratio * s
+    base = spec.open_ratio * s
     clearance = float(getattr(spec, "grasp_clearance", 0.0))
     if clearance <= 0.0:
         return base

@@ -15,7 +15,7 @@ import math
 import numpy as np
 
 from ..configuration import Configuration, quat_from_yaw, rotate_z, yaw_of
-from ..blocks.hand import finger_room, grasp_opening
+from ..blocks.hand import pickup_opening
 from ..blocks.hand import grasp_yaw as _grasp_yaw, grip_height as _grip_height, in_hand as _in_hand
 from ..blocks.terms import block_index, parse_action  # noqa: F401  (used as state_mapping.*)
 from .columns import LEFT, column_of, column_x, side_of, tallest_pile, two_columns
@@ -86,12 +86,10 @@ def _pickup_opening(spec: ContainerSpec, config: Configuration, i: int, s):
     """The grasp's opening for block i at believed side(s) `s` (``blocks.hand.grasp_opening``):
     the other blocks (each reaching the prior's largest half diagonal) and the tray (its
     outer half diagonal) bound the room."""
-    if spec.grasp_clearance <= 0.0:
-        return spec.open_ratio * s
     reach = float(np.sqrt(0.5) * spec.prior_high)
     others = {1 + j: reach for j in range(spec.n_blocks)}
     others[0] = float(np.hypot(*spec.outer_half))
-    return grasp_opening(spec, s, finger_room(spec, config, 1 + i, others))
+    return pickup_opening(spec, config, 1 + i, s, others)
 
 
 def action_pose(spec: ContainerSpec, sizes: np.ndarray, config: Configuration, action: str) -> np.ndarray:

@@ -29,6 +29,16 @@ TOWER_JITTER_M = PLACEMENT_JITTER_M / 2
 BUILD_TRIES = 3
 
 
+def truth_and_belief(domain, true_size: float, believed_size: float,
+                     believed_density: float | None = None) -> tuple[dict, dict]:
+    """A probe's true properties (every block `true_size`) and Y's belief (every block
+    `believed_size`, the density `believed_density` or the domain's)."""
+    n = domain.spec.n_blocks
+    believed = {"block_sizes": np.full(n, believed_size),
+                "density": domain.spec.density if believed_density is None else float(believed_density)}
+    return {"block_sizes": np.full(n, true_size)}, believed
+
+
 def tower_atoms(k: int) -> set[str]:
     """The `on` chain of b1..bk stacked in order on the start site."""
     return {f"on(b{i + 1},{'start' if i == 0 else f'b{i}'})" for i in range(k)}
@@ -80,10 +90,8 @@ def probe_trial(domain, action: str, true_size: float, believed_size: float, loa
         raise ValueError(f"load: stack onto a tower of {load_k} needs a free block (0..{n - 1})")
     if action in ("push", "stand") and not 1 <= load_k <= n:
         raise ValueError(f"load: a tower of {load_k} is outside 1..{n}")
-    sizes = np.full(n, true_size)
-    truth = {"block_sizes": sizes}
-    believed = {"block_sizes": np.full(n, believed_size),
-                "density": domain.spec.density if believed_density is None else float(believed_density)}
+    truth, believed = truth_and_belief(domain, true_size, believed_size, believed_density)
+    sizes = truth["block_sizes"]
     with make_world(domain) as world:
         if action == "pickup":
             config = domain.initial_configuration(truth)
@@ -144,9 +152,7 @@ def built_probe_trial(domain, action: str, true_size: float, believed_size: floa
         raise ValueError(f"load: a tower of {load_k} is outside 1..{n}")
     if action not in ("stack", "push"):
         raise ValueError(f"action: built_{action} is not a probe (built_stack, built_push)")
-    truth = {"block_sizes": np.full(n, true_size)}
-    believed = {"block_sizes": np.full(n, believed_size),
-                "density": domain.spec.density if believed_density is None else float(believed_density)}
+    truth, believed = truth_and_belief(domain, true_size, believed_size, believed_density)
     with make_world(domain) as world:
         config = built_tower(world, domain, truth, believed, load_k, rng)
         if config is None:          # the context was not reached (T* counts it a failure)
@@ -189,10 +195,8 @@ def rail_pickup_trial(domain, true_size: float, believed_size: float, load_k: in
     n = domain.spec.n_blocks
     if not 0 <= load_k <= min(RAIL_NEIGHBOURS, n - 1):
         raise ValueError(f"load: {load_k} neighbours on the rail is outside 0..{min(RAIL_NEIGHBOURS, n - 1)}")
-    sizes = np.full(n, true_size)
-    truth = {"block_sizes": sizes}
-    believed = {"block_sizes": np.full(n, believed_size),
-                "density": domain.spec.density if believed_density is None else float(believed_density)}
+    truth, believed = truth_and_belief(domain, true_size, believed_size, believed_density)
+    sizes = truth["block_sizes"]
     with make_world(domain) as world:
         config = world.reset(rail_configuration(domain, sizes, load_k, rng), truth)
         if "is_in(b1,rail)" not in domain.symbolic_state(config):

@@ -13,7 +13,7 @@ import numpy as np
 
 from ..configuration import Configuration, quat_from_yaw
 from ..blocks.hand import UPRIGHT_COS, upright  # noqa: F401  (used as state_mapping.*)
-from ..blocks.hand import finger_room, grasp_opening
+from ..blocks.hand import pickup_opening
 from ..blocks.hand import grasp_yaw as _grasp_yaw, grip_height as _grip_height, in_hand as _in_hand
 from ..blocks.terms import block_index, parse_action  # noqa: F401  (used as state_mapping.*)
 from .spec import StackAndPushSpec
@@ -181,10 +181,8 @@ def release_opening(spec: StackAndPushSpec, s):
 def _pickup_opening(spec: StackAndPushSpec, config: Configuration, i: int, s):
     """The grasp's opening for block i at believed side(s) `s` (``blocks.hand.grasp_opening``):
     the other blocks, each reaching the prior's largest half diagonal, bound the room."""
-    if spec.grasp_clearance <= 0.0:
-        return spec.open_ratio * s
     reach = float(np.sqrt(0.5) * spec.prior_high)
-    return grasp_opening(spec, s, finger_room(spec, config, i, {j: reach for j in range(spec.n_blocks)}))
+    return pickup_opening(spec, config, i, s, {j: reach for j in range(spec.n_blocks)})
 
 
 def _rear_half(s: float, quat: np.ndarray) -> float:
