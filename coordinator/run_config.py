@@ -249,6 +249,13 @@ class RunConfig(BaseModel):
     # alone. Odd, so the perceived pose is a node. 1 by default: 3 removed the large end's
     # first-grasp loop but did not improve utility or coverage over 13 runs (docs/LOOP.md).
     perception_nodes: Literal[1, 3, 5, 7] = 1
+    # Perceptions a step is replayed at where the particle worlds disagreed among
+    # themselves and no quadrature node applies: the perceived start and k - 1 more, each
+    # movable object moved by N(0, perception_sigma^2) per axis, equally weighted, so an
+    # outcome that what the camera cannot see decides is weighed as a chance, not as the
+    # one replay's verdict (coordinator/loop/particle_worlds.py perception_draws; docs/
+    # LOOP.md, "An outcome is a sample"). 1: the perceived start alone (stored settings).
+    perception_samples: int = Field(1, ge=1, le=8)
     # Y's alternatives (the domain's ``pose_alternatives``: a cube's other grasp when a
     # neighbour is within the fingers' reach) judged by the particle worlds with the pose
     # rule "success" (issue 40; docs/LOOP.md, "Y's alternatives"). Off: Y's pose alone.
@@ -467,7 +474,8 @@ PRE_ISSUE_37_FILTER = {"ess_keep": 0.5, "resample_kernel": "rpf", "jitter_floor"
                        "model_error": "online", "recovery": "prior", "pose_rule": "mode",
                        "perception_nodes": 1, "pose_alternatives": False, "move_after_resample": False,
                        "kernel_bandwidth": "n", "first_window_sweeps": 1,
-                       "disagreement_readings": "own", "mismatch_move": False, "move_target": "prior"}
+                       "disagreement_readings": "own", "mismatch_move": False, "move_target": "prior",
+                       "perception_samples": 1}
 
 PRE_ISSUE_24_FILTER = {"outlier_rate": 0.0, "model_error": "none", "ess_keep": 0.0,
                        "resample_kernel": "jitter", "block_weights": False, "lock_in": False,
@@ -504,6 +512,8 @@ def stored_run_config(fields: dict) -> RunConfig:
     fields.setdefault("pose_alternatives", False)
     # Before the tie-break by evidence: clingo's first optimum.
     fields.setdefault("tie_break", "first")
+    # Before a disagreed step was replayed at more perceptions: the perceived start alone.
+    fields.setdefault("perception_samples", 1)
     # Before Y's grasp clearance: the 1.15 sides' opening, in a domain that has the option.
     if "grasp_clearance" not in fields and "grasp_clearance" not in (fields.get("options") or {}):
         from coordinator.domains import load, options_of

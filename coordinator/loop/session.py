@@ -36,6 +36,7 @@ from ..transition.experience import ExperiencePool
 from ..baselines.grounding_bandit import GroundingBandit
 from ..particle_filter import Belief, ParticleFilter, RealStep, Reweighting
 from ..particle_filter.belief import symbolic_log_likelihood
+from ..particle_filter.likelihood import matched
 from .reality import Observation
 from .real_pose import real_pose
 from ..run_config import AGENT_STREAM, COUNTERFACTUAL_STREAM, RunConfig, seed_stream
@@ -476,6 +477,12 @@ class Session:
         self.particle_actions += res["particle_actions"]
         self.particle_steps += res["particle_steps"]
         loglik = self._symbolic_loglik(step, observation.state, res["states"])
+        samples = self._samples(res, loglik)
+        if samples > 1:             # the worlds disagreed: the outcome is a chance, sampled
+            res = self._simulate_rows(start, sizes, step.action, step.trajectory, step.transit_end, arm=step.arm,
+                                      samples=samples, first=res)
+            self.particle_actions += res["particle_actions"] - len(sizes)
+            self.particle_steps += res["particle_steps"] - int(np.asarray(res["steps"]).sum())
         nodes = [(lw, self._symbolic_loglik(step, observation.state, r["states"]), r["measurements"])
                  for lw, r in res["perception"]] if res.get("perception") else None
         if any(o.wants_predictions for o in self.observers):   # before the update: the weights that predicted
@@ -485,7 +492,8 @@ class Session:
         # weights after, the real outcome was counted twice, issue 37).
         prior_weights = self.action_belief(step.action)[0].weights
         real = RealStep(start, step.action, step.trajectory, step.transit_end, step.expected,
-                        observation.state, np.asarray(observation.measurements, dtype=np.float64), step.arm)
+                        observation.state, np.asarray(observation.measurements, dtype=np.float64), step.arm,
+                        samples)
         update = self.filter.update(real, loglik, res["measurements"], self.rng,
                                     self._simulate_rows, self._symbolic_loglik, nodes)
         self.particle_actions += update.simulated
@@ -498,13 +506,24 @@ class Session:
         self.stats.count_update(update.informative, update.injected)
         return update.report()
 
+    def _samples(self, res: dict, loglik: np.ndarray) -> int:
+        """How many perceptions to weigh a replayed step at (``perception_samples``): more
+        than one only where the worlds at the perceived start disagreed among themselves
+        and no quadrature integrates the step already (docs/LOOP.md, "An outcome is a
+        sample"); a step every world replayed alike moves no weight between them."""
+        k = self.config.perception_samples
+        if k <= 1 or res.get("perception") or self.config.likelihood != "replay":
+            return 1
+        agreed = matched(loglik, self.config.error_rate)
+        return k if agreed.any() and not agreed.all() else 1
+
     def _simulate_rows(self, start: np.ndarray, rows: np.ndarray, action: str, trajectory, start_time,
-                       arm: ArmMotion | None = None) -> dict:
+                       arm: ArmMotion | None = None, samples: int = 1, first: dict | None = None) -> dict:
         """The particle worlds as the filter sees them (a callable; its time is physics):
         ``coordinator.loop.particle_worlds.simulate_rows`` on the session's shard pool."""
         t0 = time.perf_counter()
         out = simulate_rows(self.shard_pool, self.domain, self.config, start, rows, action, trajectory,
-                            start_time, arm=arm)
+                            start_time, arm=arm, samples=samples, first=first)
         self.stats.physics_s += time.perf_counter() - t0
         return out
 

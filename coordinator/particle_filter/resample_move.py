@@ -92,12 +92,16 @@ class RealStep:
     observed: frozenset[str]
     measurements: np.ndarray
     arm: object = None            # an arm's joints the worlds move its links along (ArmMotion), or None
+    # The perceptions the update replayed the step at (perception_samples; 1: the perceived
+    # start alone), so that a re-scored step is weighed as the update weighed it.
+    samples: int = 1
 
     def replay(self, simulate, rows: np.ndarray) -> dict:
         """`simulate` (the particle worlds) run for this step with `rows` of L."""
-        if self.arm is None:
-            return simulate(self.start, rows, self.action, self.trajectory, self.start_time)
-        return simulate(self.start, rows, self.action, self.trajectory, self.start_time, arm=self.arm)
+        extra = {} if self.arm is None else {"arm": self.arm}
+        if self.samples > 1:
+            extra["samples"] = self.samples
+        return simulate(self.start, rows, self.action, self.trajectory, self.start_time, **extra)
 
 
 def propose(rows: np.ndarray, dims: np.ndarray, low: np.ndarray, high: np.ndarray,
