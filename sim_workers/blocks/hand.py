@@ -158,7 +158,8 @@ def finger_room(spec, config: Configuration, row: int, others: dict[int, float])
     fingers' closing axis, the distance to the nearest reach of another object whose reach
     comes within a finger's width across it, less a finger's thickness and ``FINGER_GAP``
     (inf where nothing is in the way). `others`: row -> the farthest that object reaches
-    from its centre in the plane (a cube's half diagonal at the largest believed side)."""
+    from its centre in the plane (a cube's half diagonal at the largest believed side), a
+    number or one per row of L (then the room is one per row)."""
     centre = config.objects[row, :2]
     axis = closing_axis(config.objects[row, 3:])
     across = np.array([-axis[1], axis[0]])
@@ -167,9 +168,11 @@ def finger_room(spec, config: Configuration, row: int, others: dict[int, float])
         if j == row:
             continue
         d = config.objects[j, :2] - centre
-        if abs(float(d @ across)) < spec.finger_half[0] + reach:
-            room = min(room, abs(float(d @ axis)) - reach - 2.0 * spec.finger_half[1] - FINGER_GAP)
-    return room
+        reach = np.asarray(reach, dtype=np.float64)
+        near = abs(float(d @ across)) < spec.finger_half[0] + reach
+        room = np.minimum(room, np.where(near, abs(float(d @ axis)) - reach - 2.0 * spec.finger_half[1] - FINGER_GAP,
+                                         np.inf))
+    return room if np.ndim(room) else float(room)
 
 
 def pickup_opening(spec, config: Configuration, row: int, s, others: dict[int, float]):
@@ -196,6 +199,7 @@ def grasp_opening(spec, s, room: float):
     if clearance <= 0.0:
         return base
     wide = np.minimum(np.asarray(s, dtype=np.float64) + 2.0 * clearance,
-                      min(2.0 * room, spec.max_opening - HAND_OPEN_MARGIN - FINGER_GAP))
+                      np.minimum(2.0 * np.asarray(room, dtype=np.float64),
+                                 spec.max_opening - HAND_OPEN_MARGIN - FINGER_GAP))
     out = np.maximum(base, wide)
     return out if np.ndim(s) else float(out)

@@ -31,14 +31,28 @@ def test_off_it_is_y_of_before_and_on_it_widens_where_there_is_room(domain_name)
         assert wide[4] >= on.spec.open_ratio * s - 1e-15
         assert np.array_equal(np.delete(wide, 4), np.delete(_pickup(off, config, "b3", s), 4))
     # The supply row runs along x in stack-and-push (the fingers close along y, free) and
-    # along y in the container (the neighbours lie on the closing axis): 32 mm widens to
-    # s + 2c in the first; in the second the 71-80 mm slots leave less than that.
+    # along y in the container (the neighbours lie on the closing axis, 75 mm apart): 32 mm
+    # widens to s + 2c in both.
     config = off.initial_configuration({"block_sizes": np.full(n, 0.032)})
-    got = _pickup(on, config, "b3", 0.032)[4]
-    if domain_name == "stack_and_push":
-        assert got == pytest.approx(0.032 + 2 * C)
-    else:
-        assert on.spec.open_ratio * 0.032 < got < 0.032 + 2 * C
+    assert _pickup(on, config, "b3", 0.032)[4] == pytest.approx(0.032 + 2 * C)
+
+
+def test_the_containers_row_leaves_the_room_its_believed_blocks_leave():
+    """In the container the neighbours stand on the closing axis: each counts as far as its
+    footprint at the believed side reaches along it, plus c (where the camera may have put
+    it). 45 and 50 mm widen to s + 2c; from 54 mm the 75 mm pitch leaves less than the 1.15
+    sides and the opening is theirs. The open fingers never come within FINGER_GAP of a
+    neighbour's believed reach."""
+    domain = load("container", grasp_clearance=C)
+    spec, n = domain.spec, domain.spec.n_blocks
+    for s, widened in ((0.045, True), (0.050, True), (0.054, False), (0.058, False)):
+        config = domain.initial_configuration({"block_sizes": np.full(n, s)})
+        pitch = float(np.linalg.norm(config.objects[4, :2] - config.objects[3, :2]))
+        opening = _pickup(domain, config, "b3", s)[4]
+        reach = s / 2 + C                        # yaw 0 in the initial row: the half side
+        assert opening == pytest.approx(s + 2 * C if widened else spec.open_ratio * s), s
+        if widened:
+            assert opening / 2 + 2 * spec.finger_half[1] + reach <= pitch - FINGER_GAP + 1e-12
 
 
 def test_a_neighbour_on_the_closing_axis_bounds_the_opening():
