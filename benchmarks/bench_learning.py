@@ -64,6 +64,7 @@ def sweep_args(domain: str, args) -> argparse.Namespace:
         name="sweep", domain=domain, runs=args.seeds, episodes=args.episodes, particles=args.particles,
         seed=args.seed, particle_budget=args.particle_budget, min_particles=8, scale=args.scale or "default",
         max_steps=args.max_steps, true_size=None, milestones=None, probe_trials=args.probe_trials, probe_seed=0,
+        probe_perception=args.probe_perception or 0.0,
         checkpoint_s=60.0, ray_address=None, out=None, resume=args.resume, no_progress=True,
         engine=args.engine, reality_engine=args.reality_engine, run_fields=_run_fields(args))
 
@@ -142,6 +143,10 @@ def main(argv=None) -> int:
     ap.add_argument("--probe-trials", type=int, default=None,
                     help=f"T*'s probe trials per context (default {PROBE_TRIALS}; --rejudge: the T* "
                          "sweep's own)")
+    ap.add_argument("--probe-perception", type=float, default=None, metavar="M",
+                    help="T*'s probes plan from positions perceived with this std (m), as the runs' "
+                         "robot does (e.g. 0.002; default 0: exact, the committed sweeps' judge; "
+                         "--rejudge: the T* sweep's own)")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--engine", default=None, help="the particle worlds' engine (default: pybullet)")
     ap.add_argument("--reality-engine", default=None,
@@ -226,6 +231,7 @@ def rejudge(args) -> int:
         for key, stored in (("seeds", own.get("runs")), ("episodes", own.get("episodes")),
                             ("particles", own.get("particles")), ("scale", own.get("scale")),
                             ("probe_trials", src.get("probe_trials")),
+                            ("probe_perception", src.get("probe_perception")),
                             ("reality_engine", src.get("reality_engine"))):
             if getattr(a, key) is None:
                 setattr(a, key, stored)

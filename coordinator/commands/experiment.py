@@ -56,6 +56,10 @@ def register(sub) -> None:
                    help=f"seeded trials per probe when estimating the true T (cached in DIR/true_T.json; "
                         f"default {DEFAULT_PROBE_TRIALS}, `sweep`: 10 per truth, in DIR/true_T/)")
     p.add_argument("--probe-seed", type=int, default=0, help="seed of the T* probes")
+    p.add_argument("--probe-perception", type=float, default=0.0, metavar="M",
+                   help="T*'s probes plan each action from positions perceived with this std (m), "
+                        "as the runs' robot does (e.g. 0.002, the simulated reality's camera; "
+                        "default 0: the exact positions)")
     p.add_argument("--checkpoint-s", type=float, default=60.0,
                    help="seconds between a running run's checkpoints (kept for --resume)")
     p.add_argument("--engine", default=None, metavar="pybullet|mujoco",
@@ -158,6 +162,9 @@ def spec_from_args(args):
         args.probe_trials = SWEEP_PROBE_TRIALS if args.name == "sweep" else ex.DEFAULT_PROBE_TRIALS
     _int_at_least(args.probe_trials, "--probe-trials", 1, 100000)
     _int_at_least(args.probe_seed, "--probe-seed", 0)
+    perception = getattr(args, "probe_perception", 0.0)
+    if not 0.0 <= perception <= 0.05:
+        raise UsageError(f"--probe-perception: must be in [0, 0.05] m (got {perception})")
     if not args.checkpoint_s > 0:
         raise UsageError(f"--checkpoint-s: must be > 0 (got {args.checkpoint_s})")
     if args.milestones is None:
@@ -173,7 +180,8 @@ def spec_from_args(args):
                              f"(got {args.milestones!r})")
     spec = ex.Spec(name=args.name, runs=runs, episodes=episodes, particles=particles, seed=args.seed,
                    max_steps=args.max_steps, true_size=args.true_size, milestones=milestones,
-                   probe_trials=args.probe_trials, probe_seed=args.probe_seed, scale=args.scale,
+                   probe_trials=args.probe_trials, probe_seed=args.probe_seed, probe_perception=perception,
+                   scale=args.scale,
                    settings=ex.settings_for(args.name, particles, args.domain, args.scale), domain=args.domain,
                    particle_budget=args.particle_budget,
                    min_particles=_int_at_least(args.min_particles, "--min-particles", 1),

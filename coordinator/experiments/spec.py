@@ -53,6 +53,9 @@ class Spec:
     milestones: tuple[int, ...] = ()
     probe_trials: int = DEFAULT_PROBE_TRIALS
     probe_seed: int = 0
+    # T*'s probes planned from positions perceived with this std (m), as the runs' robot
+    # plans (issue 37: a judge under the runs' camera); 0: the exact positions, as before.
+    probe_perception: float = 0.0
     scale: str = "default"
     settings: list[Setting] = field(default_factory=list)
     domain: str = DEFAULT_DOMAIN
@@ -71,6 +74,8 @@ class Spec:
                "true_size": self.true_size, "milestones": list(self.milestones),
                "probe_trials": self.probe_trials, "probe_seed": self.probe_seed,
                "scale": self.scale}
+        if self.probe_perception > 0:       # (summaries from before it stay valid)
+            out["probe_perception"] = self.probe_perception
         if self.domain != DEFAULT_DOMAIN:  # the committed summaries from before domains stay valid
             out["domain"] = self.domain
         if self.particle_budget != "fixed":

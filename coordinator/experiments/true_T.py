@@ -54,6 +54,8 @@ def t_star_params(spec: Spec, n_blocks: int | None = None, setting: Setting | No
               "seed": spec.probe_seed}
     if spec.domain != DEFAULT_DOMAIN:       # (caches from before domains stay valid)
         params["domain"] = spec.domain
+    if getattr(spec, "probe_perception", 0.0) > 0:     # (caches probed exactly stay valid)
+        params["perception_sigma"] = float(spec.probe_perception)
     version = _physics_spec(spec.domain).version
     if version != 1:                        # a cache without one is version 1's
         params["domain_version"] = version
@@ -117,16 +119,20 @@ def _probe_remote():
 
     @ray.remote(num_cpus=1)
     def probe_task(action: str, true_size: float, load_k: int, trials: int, seed: int,
-                   n_blocks: int, domain: str, options: dict | None = None, robot: str | None = None) -> int:
-        return probe_successes(action, true_size, load_k, trials, seed, n_blocks, domain, options, robot)
+                   n_blocks: int, domain: str, options: dict | None = None, robot: str | None = None,
+                   perception_m: float = 0.0) -> int:
+        return probe_successes(action, true_size, load_k, trials, seed, n_blocks, domain, options, robot,
+                               perception_m)
 
     return probe_task
 
 
 def probe_successes(action: str, true_size: float, load_k: int, trials: int, seed: int, n_blocks: int,
-                    domain: str, options: dict | None = None, robot: str | None = None) -> int:
+                    domain: str, options: dict | None = None, robot: str | None = None,
+                    perception_m: float = 0.0) -> int:
     """One of T*'s probes (Y at the truth): its successes in `trials`, done by `robot` (None:
-    the floating gripper) with the domain's options as that robot runs it."""
+    the floating gripper) with the domain's options as that robot runs it, each action
+    planned from positions perceived with std `perception_m` (0: exactly)."""
     from sim_workers.probe import probe
 
     options = dict(options or {})
@@ -134,7 +140,7 @@ def probe_successes(action: str, true_size: float, load_k: int, trials: int, see
         options = options_for(robot, _physics(domain), options)
     with with_robot(robot) as doing:
         successes = probe(action, true_size, true_size, load_k, trials, seed, n_blocks,
-                          domain=domain, options=options).successes
+                          domain=domain, options=options, perception_m=perception_m).successes
     doing.check_used(domain)
     return successes
 
@@ -144,7 +150,7 @@ def submit_probes(params: dict) -> list:
     task = _probe_remote()
     domain = params.get("domain", DEFAULT_DOMAIN)
     return [task.remote(a, params["true_size"], k, params["trials"], params["seed"], params["n_blocks"],
-                        domain, params.get("options"), params.get("robot"))
+                        domain, params.get("options"), params.get("robot"), params.get("perception_sigma", 0.0))
             for a, k in probe_jobs(params["n_blocks"], domain)]
 
 

@@ -45,6 +45,8 @@ def _csv(path):
     (["milestones", "--episodes", "4", "--milestones", "2,9"], "--milestones"),
     (["milestones", "--milestones", "x"], "--milestones"),
     (["compare", "--probe-trials", "0"], "--probe-trials"),
+    (["compare", "--probe-perception", "-0.001"], "--probe-perception"),
+    (["compare", "--probe-perception", "0.5"], "--probe-perception"),
     (["figure9"], "NAME"),
     (["robot", "--robot", "ur6"], "--robot"),
     (["robot", "--robot", "ur5e", "--set", "robot=gripper"], "--robot"),
@@ -94,6 +96,23 @@ def test_t_star_is_probed_for_the_runs_object_count():
     spec.run_fields = {"n_objects": 3}
     assert ex.t_star_params(spec)["n_blocks"] == 3
     assert len(ex.probe_jobs(3, "container")) < len(ex.probe_jobs(8, "container"))
+
+
+def test_t_star_probed_under_the_runs_camera_is_its_own_cache():
+    """`--probe-perception M`: T*'s probes plan from perceived positions (issue 37: a judge
+    under the runs' noise); the cache key carries it, so an exact T* is never taken for it,
+    and without it the key is what it was (the committed caches stay valid). The probe
+    itself plans from the perception: at 4 mm a 45 mm pickup fails where the exact one holds."""
+    from coordinator.cli import build_parser
+    from coordinator.commands.experiment import spec_from_args
+    from coordinator.experiments.true_T import probe_successes
+
+    parse = lambda *a: spec_from_args(build_parser().parse_args(["experiment", *a]))
+    exact, seen = parse("compare"), parse("compare", "--probe-perception", "0.002")
+    assert "perception_sigma" not in ex.t_star_params(exact) and "probe_perception" not in exact.to_dict()
+    assert ex.t_star_params(seen)["perception_sigma"] == 0.002 and seen.to_dict()["probe_perception"] == 0.002
+    assert probe_successes("pickup", 0.045, 1, 12, 0, 8, "container") == 12
+    assert probe_successes("pickup", 0.045, 1, 12, 0, 8, "container", perception_m=0.004) < 12
 
 
 def test_set_options_key_sets_one_domain_option_and_a_setting_adds_its_own():
