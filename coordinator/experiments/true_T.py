@@ -54,7 +54,7 @@ def t_star_params(spec: Spec, n_blocks: int | None = None, setting: Setting | No
               "seed": spec.probe_seed}
     if spec.domain != DEFAULT_DOMAIN:       # (caches from before domains stay valid)
         params["domain"] = spec.domain
-    if getattr(spec, "probe_perception", 0.0) > 0:     # (caches probed exactly stay valid)
+    if spec.probe_perception > 0:           # (caches probed exactly stay valid)
         params["perception_sigma"] = float(spec.probe_perception)
     version = _physics_spec(spec.domain).version
     if version != 1:                        # a cache without one is version 1's

@@ -479,10 +479,11 @@ class Session:
         loglik = self._symbolic_loglik(step, observation.state, res["states"])
         samples = self._samples(res, loglik)
         if samples > 1:             # the worlds disagreed: the outcome is a chance, sampled
-            res = self._simulate_rows(start, sizes, step.action, step.trajectory, step.transit_end, arm=step.arm,
-                                      samples=samples, first=res)
-            self.particle_actions += res["particle_actions"] - len(sizes)
-            self.particle_steps += res["particle_steps"] - int(np.asarray(res["steps"]).sum())
+            sampled = self._simulate_rows(start, sizes, step.action, step.trajectory, step.transit_end,
+                                          arm=step.arm, samples=samples, first=res)
+            self.particle_actions += sampled["particle_actions"] - res["particle_actions"]     # the new ones
+            self.particle_steps += sampled["particle_steps"] - res["particle_steps"]
+            res = sampled
         nodes = [(lw, self._symbolic_loglik(step, observation.state, r["states"]), r["measurements"])
                  for lw, r in res["perception"]] if res.get("perception") else None
         if any(o.wants_predictions for o in self.observers):   # before the update: the weights that predicted
