@@ -262,8 +262,9 @@ class RunConfig(BaseModel):
     pose_alternatives: bool = True
     # Y's grasp clearance per side (m) in a domain with the option ``grasp_clearance`` (the
     # block worlds: sim_workers.blocks.hand.grasp_opening): the opening widens to s + 2c
-    # where the other objects leave room. None: the domain's default (stack-and-push 6 mm,
-    # 3 sigma of the camera; the container 0); stored settings from before it: 0.
+    # where the other objects leave room. None: the domain's default (6 mm in both block
+    # domains, 3 sigma of the camera; the container's since 2026-12-01); stored settings
+    # from before it: 0.
     grasp_clearance: float | None = Field(None, ge=0.0, le=0.02)
     # How the planner chooses among plans of equal expected utility, for a task half that
     # declares "trials" in ``transition_extras`` (the block worlds): "first", clingo's first

@@ -6,7 +6,8 @@
 Each trial builds a world with true block size S, jitters block placement (a few mm) and
 friction (about 10 %) from the seed, takes the action's poses from Y with the believed
 size B (default S) and reads the outcome through Y^-1. `--load K` is the number of blocks
-in the container for `push` and the number of blocks stacked for `stack`.
+in the container for `push` (piled as Y piles them at B: the container's two columns or
+one) and the number of blocks stacked for `stack`.
 
 `--robot ur5e` has the trials' actions done by the arm (`tmoc robots`): each action's joint
 path planned from where the last one left the arm, its links moving in the world, tracked

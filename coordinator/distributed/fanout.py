@@ -137,15 +137,16 @@ class ShardPool:
     pools for several scenes at once gives each a fraction, so they never starve each other).
 
     In-process (no Ray): one pickup simulated under two beliefs of the blocks' size, the
-    true 45 mm and 60 mm, wider than the fingers open for a 45 mm block (they land on it):
+    true 45 mm and 60 mm, wider than the fingers open for a 45 mm block at 1.15 sides (the
+    option ``grasp_clearance=0``; they land on it):
 
     >>> from sim_workers.domains import load
-    >>> physics = load("container")
+    >>> physics = load("container", grasp_clearance=0.0)
     >>> truth = physics.true_properties()
     >>> config = physics.initial_configuration(truth)
     >>> action = "pickup(r,b3,init)"
     >>> trajectory = physics.action_trajectory(config, action, physics.action_pose(truth, config, action))
-    >>> pool = ShardPool("container", n_shards=0)
+    >>> pool = ShardPool("container", {"grasp_clearance": 0.0}, n_shards=0)
     >>> out = pool.simulate(config.to_array(), np.array([[0.045] * 8, [0.060] * 8]), action,
     ...                     trajectory, start_time=float(trajectory[3, 0]))
     >>> sorted(out)

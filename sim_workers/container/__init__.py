@@ -137,14 +137,15 @@ class ContainerDomain(PhysicsDomain):
 
     def pose_classes(self, rows: np.ndarray, config: Configuration, action: str) -> np.ndarray:
         """The discrete choice Y makes for each row of L ((N, D) -> (N,) ints): for a stack
-        the tray's layout (1: two columns, 0: one), for other actions none (all 0). The
-        coordinator averages the real pose over one class: the mean of a one-column and a
-        two-column placement lands on neither column."""
+        the tray's layout (1: two columns, 0: one; ``columns.tray_layout``), for other
+        actions none (all 0). The coordinator averages the real pose over one class: the
+        mean of a one-column and a two-column placement lands on neither column."""
         name, _ = state_mapping.parse_action(action)
         sizes = self._row_sizes(rows)
         if name != "stack":
             return np.zeros(len(sizes), dtype=np.int64)
-        return np.asarray(columns.two_columns(self.spec, sizes), dtype=np.int64)
+        inside = state_mapping.in_tray(state_mapping.block_labels(self.spec, config))
+        return np.asarray(columns.tray_layout(self.spec, config, sizes, inside), dtype=np.int64)
 
     def action_trajectory(self, config: Configuration, action: str, key: np.ndarray,
                           transit: np.ndarray | None = None) -> np.ndarray:

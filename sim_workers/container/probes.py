@@ -8,19 +8,24 @@ from ..configuration import Configuration, quat_from_yaw
 from ..engines.registry import make_world
 from ..grounded_world import act
 from ..reality_gap import PLACEMENT_JITTER_M, YAW_JITTER_RAD, jitter_planar
-from .columns import column_x, two_columns
+from .columns import column_x, side_by_side, two_columns
 
 PROBE_ACTIONS = ("pickup", "stack", "push")
 
 
-def loaded_configuration(domain, sizes: np.ndarray, load_k: int, rng: np.random.Generator) -> Configuration:
-    """The first `load_k` blocks piled in the container as Y piles them: two side by side
-    per layer, or one column when the blocks do not fit in half the tray (``columns``)."""
+def loaded_configuration(domain, sizes: np.ndarray, load_k: int, rng: np.random.Generator,
+                         believed: np.ndarray | None = None) -> Configuration:
+    """The first `load_k` blocks (true `sizes`) piled in the container as Y piles them at
+    the `believed` sizes (default: the true ones): two side by side per layer, or one column
+    when the believed blocks do not fit in half the tray (``columns``). A counterfactual
+    world of 49.3 mm blocks pushes the two columns a 48 mm belief builds, each block against
+    its wall, not the one column its own size would get: the pile the robot would push."""
     spec = domain.spec
     config = domain.initial_configuration({"block_sizes": sizes})
     objects = jitter_planar(rng, config.objects, range(1, 1 + spec.n_blocks))
     c = objects[0, :2]
-    two = two_columns(spec, sizes)
+    layout = sizes if believed is None else believed
+    two = two_columns(spec, layout) and side_by_side(spec, sizes)
     per_layer = 2 if two else 1
     for i in range(load_k):
         s = sizes[i]
@@ -43,7 +48,7 @@ def probe_trial(domain, action: str, true_size: float, believed_size: float, loa
     believed = {"block_sizes": np.full(n_blocks, believed_size)}
     with make_world(domain) as world:
         if action == "push":
-            config = world.reset(loaded_configuration(domain, sizes, load_k, rng), truth)
+            config = world.reset(loaded_configuration(domain, sizes, load_k, rng, believed["block_sizes"]), truth)
             out = act(world, domain, config, believed, "push(r,c,init,goal)")
             return all(f"is_in(b{i + 1},goal)" in out.state for i in range(load_k))
         config = domain.initial_configuration(truth)

@@ -55,7 +55,8 @@ class ContainerSpec:
     open_ratio: float = 1.15
     # ... widened to s + 2 grasp_clearance where the other objects leave the fingers room
     # (sim_workers.blocks.hand.grasp_opening: the perception error a grasp tolerates); 0: off.
-    grasp_clearance: float = 0.0
+    # 6 mm: 3 sigma of the simulated reality's 2 mm camera (docs/LOOP.md, "Y's grasp clearance").
+    grasp_clearance: float = 0.006
     grip_depth: float = 0.010       # the least depth: fingertips this far below the believed top
     grip_depth_ratio: float = 1.0 / 3.0   # ... or this share of the believed size if deeper
     release_clearance: float = 0.006

@@ -6,7 +6,8 @@ configuration to ground atoms. The same code serves the real world and every par
 their outcomes are comparable. ``place_for_sizes`` re-grounds an observed configuration
 under one hypothesis L_i (heights follow from each particle's own sizes, since the
 observation fixes only where things are, not how big they are). Where blocks pile in the
-tray, one column or two, is ``columns``' layout of the same hypothesis.
+tray, one column or two, is ``columns``' layout: the rule's for an empty tray, the one the
+tray has for a tray that holds blocks.
 """
 from __future__ import annotations
 
@@ -18,7 +19,7 @@ from ..configuration import Configuration, quat_from_yaw, rotate_z, yaw_of
 from ..blocks.hand import closing_axis, pickup_opening
 from ..blocks.hand import grasp_yaw as _grasp_yaw, grip_height as _grip_height, in_hand as _in_hand
 from ..blocks.terms import block_index, parse_action  # noqa: F401  (used as state_mapping.*)
-from .columns import LEFT, column_of, column_x, side_of, tallest_pile, two_columns
+from .columns import LEFT, column_of, column_x, side_of, tallest_pile, tray_layout
 from .spec import ContainerSpec
 
 # Labels of where a block is; Y^-1 turns them into atoms.
@@ -64,6 +65,11 @@ def block_labels(spec: ContainerSpec, config: Configuration) -> list[str]:
     for i in held[1:]:                       # one hand holds one block; the nearest wins
         labels[i] = TABLE
     return labels
+
+
+def in_tray(labels: list[str]) -> list[int]:
+    """The blocks (0-based) a configuration's labels put in the container."""
+    return [i for i, label in enumerate(labels) if label == CONTAINER]
 
 
 def symbolic_state(spec: ContainerSpec, config: Configuration) -> frozenset[str]:
@@ -118,7 +124,7 @@ def action_pose(spec: ContainerSpec, sizes: np.ndarray, config: Configuration, a
         c = config.objects[0]
         cyaw = yaw_of(c[3:])
         labels = block_labels(spec, config)
-        two = two_columns(spec, sizes)
+        two = tray_layout(spec, config, sizes, in_tray(labels))
         heights = [spec.floor_top, spec.floor_top]
         for j, label in enumerate(labels):
             if label == CONTAINER:
@@ -162,7 +168,7 @@ def action_poses(spec: ContainerSpec, sizes: np.ndarray, config: Configuration, 
         c = config.objects[0]
         cyaw = yaw_of(c[3:])
         labels = block_labels(spec, config)
-        two = two_columns(spec, sizes)                   # (n,): each hypothesis its layout
+        two = tray_layout(spec, config, sizes, in_tray(labels))   # (n,): each hypothesis its layout
         rows = np.arange(n)
         heights = np.full((n, 2), spec.floor_top)
         for j, label in enumerate(labels):
@@ -208,7 +214,8 @@ def place_for_sizes(spec: ContainerSpec, config: Configuration, sizes: np.ndarra
 
     Planar poses (x, y, yaw) come from the observation; heights come from the hypothesis:
     a block on the table rests on it, a block in the container rests on the ones below it
-    in its column of the hypothesis' layout (``columns``: one or two; order by observed
+    in its column of the tray's layout under the hypothesis (``columns.tray_layout``: the
+    layout the pile has, where the hypothesis' blocks can lie that way; order by observed
     height), a held block stays where it was seen and the fingers close on its
     hypothesised width. Blocks are set upright (cubes at rest).
     """
@@ -219,7 +226,7 @@ def place_for_sizes(spec: ContainerSpec, config: Configuration, sizes: np.ndarra
     cyaw = yaw_of(c[3:])
     objects[0] = np.concatenate([[c[0], c[1], 0.0], quat_from_yaw(cyaw)])
     iy = spec.inner_half[1]
-    two = two_columns(spec, sizes)
+    two = tray_layout(spec, config, sizes, in_tray(labels))
     columns: dict[int, list[int]] = {0: [], 1: []}
     for i, label in enumerate(labels):
         p = config.objects[1 + i]

@@ -21,7 +21,8 @@ def test_pickup_json_has_the_rate_and_the_inputs(capsys):
 
 
 def test_wrong_believed_size_fails_and_human_line(capsys):
-    code = main(BASE + ["--action", "pickup", "--believed-size", "0.0315", "--trials", "2"])
+    code = main(BASE + ["--action", "pickup", "--believed-size", "0.0315", "--trials", "2",
+                        "--option", "grasp_clearance=0"])           # 1.15 sides: the fingers land on it
     out, _ = capsys.readouterr()
     assert code == 0
     assert out.count("\n") == 1
@@ -165,9 +166,10 @@ def test_truth_and_belief_by_the_names_of_L(capsys):
     assert main(base) == 0                                     # the domain's default truth
     default = json.loads(capsys.readouterr().out)
     assert default["truth"] == {"size": 0.045} == default["belief"] and default["true_size"] == 0.045
-    assert main(base + ["--truth", "size=0.045", "--belief", "size=0.0315"]) == 0
+    narrow = ["--option", "grasp_clearance=0"]                 # 1.15 sides: the fingers land on it
+    assert main(base + ["--truth", "size=0.045", "--belief", "size=0.0315"] + narrow) == 0
     named = json.loads(capsys.readouterr().out)
-    assert main(base + ["--true-size", "0.045", "--believed-size", "0.0315"]) == 0
+    assert main(base + ["--true-size", "0.045", "--believed-size", "0.0315"] + narrow) == 0
     assert json.loads(capsys.readouterr().out) == named and named["successes"] == 0
     for extra, needle in ((["--truth", "mass=3"], "--truth mass: not a property of L"),
                           (["--belief", "size=0.5"], "--belief size: 0.5 m is outside"),

@@ -43,10 +43,17 @@ def test_posteriors_cover_the_truth_across_a_small_grid():
             zs.append((domain, size, name, abs(mean - t) / std if std > 0 else float("inf")))
             sharp.append((domain, size, name, std / prior_std[name]))
     covered = [z for z in zs if z[-1] <= COVERAGE_Z]
-    # Every entry within 2 std but at most one (a 2-std interval misses 5 % of the time
-    # when calibrated), and nothing confidently wrong.
-    assert len(covered) >= len(zs) - 1, zs
-    assert max(z[-1] for z in zs) < 4.0, zs
+    # Every entry within 2 std but at most two, and none beyond 3 std. For a calibrated
+    # posterior (z ~ N(0, 1)) over the 7 entries that fails 2.3 % of the time (3 or more
+    # misses: 0.4 %; some |z| > 3: 1.9 %); for one twice as confident as it should be
+    # (z ~ N(0, 4)) it fails about 3 times in 4 (each entry misses 2 std with 32 %, exceeds
+    # 3 std with 13 %). The rule it replaces (at most one miss, none beyond 4 std) failed a
+    # calibrated posterior 4.4 % of the time with about the same power: at seed 1 the
+    # container's 33 and 45 mm entries end 2.32 and 2.25 std off (12 particles, 2
+    # episodes; over seeds 1-4 at 33, 45 and 57 mm: 2 misses of 12, the largest 2.32; at
+    # the 1.15 sides' grasp 2 of 12 too, the largest 2.39).
+    assert len(covered) >= len(zs) - 2, zs
+    assert max(z[-1] for z in zs) < 3.0, zs
     # ... and the posterior learned: a posterior as wide as the prior covers every truth
     # (issue 37: this test passed one). Two episodes pin the size to a few per cent of the
     # prior's std, and the density read by the precise 0.1 N sensor to under half of it.

@@ -476,15 +476,17 @@ def test_the_seed_91_grasp_loop_is_gone():
     """Issue 37's reproduction: 44 mm, seed 91, 16 particles, exact readings. Issue 24's
     filter fails pickup(r,b1,init) again and again (24 times in the full run), its belief
     flipping between two grasp modes; issue 37's grasps within a few tries. With the grip
-    10 mm deep, as it was reported: the grip a third of the believed side deep holds both
-    modes' grasps, and neither filter loops there (issue 24's: 1 failure in a row)."""
+    10 mm deep and the opening 1.15 sides, as it was reported: the grip a third of the
+    believed side deep holds both modes' grasps, and neither filter loops there (issue
+    24's: 1 failure in a row); nor with the 6 mm clearance (0 each)."""
     from coordinator.loop.runner import run
 
     runs = {}
     for name, kw in (("new", {}), ("old", PRE_ISSUE_37_FILTER)):
         records: list[dict] = []
         cfg = RunConfig(true_size=0.044, seed=91, particles=16, episodes=1, max_steps=10, counterfactual_rows=0,
-                        sensor_noise=0.0, perception_sigma=0.0, options={"grip_depth_ratio": 0.0}, **kw)
+                        sensor_noise=0.0, perception_sigma=0.0,
+                        options={"grip_depth_ratio": 0.0, "grasp_clearance": 0.0}, **kw)
         run(cfg, on_episode=lambda rec, session, ck, out=records: out.extend(session.step_records))
         runs[name] = _longest_failure_run(records)
     assert runs["new"] < 6 and runs["old"] >= 6, runs

@@ -58,8 +58,8 @@ def _failed_zero_clearance_grasp(nodes: int, readings: str = "departure") -> flo
     57.9 mm open (a believed 50.4 mm) failed, the fingers closing on nothing (0 mm);
     `readings`: how a world whose outcome did not match has its opening scored."""
     s = Session(RunConfig(true_size=0.0579, particles=len(SIZES), seed=3, particle_budget="fixed",
-                          perception_nodes=nodes, disagreement_readings=readings),
-                shard_pool=ShardPool("container", {}, n_shards=0))
+                          perception_nodes=nodes, disagreement_readings=readings, grasp_clearance=0.0),
+                shard_pool=ShardPool("container", {"grasp_clearance": 0.0}, n_shards=0))
     config = s.domain.initial_configuration(s.domain.properties({"block_sizes": np.full(8, 0.0579)}))
     pose = s.domain.action_pose(s.props_of(np.full(8, 0.0504)), config, ACTION)
     assert math.isclose(pose[4], 0.0579, abs_tol=1e-4)        # no clearance for the truth

@@ -1,6 +1,7 @@
-"""The tray's column layout (issue 24): Y places every block inside the tray for every L of
-the prior, in two columns when they fit in half the tray and in one column otherwise;
-re-grounding and Y^-1 agree with it. Geometry without physics, then one physical check."""
+"""The tray's column layout (issues 24 and 40): Y places every block inside the tray for
+every L of the prior, in two columns when they fit side by side in the tray and in one
+column otherwise; a tray that holds blocks keeps the layout it has under every hypothesis;
+re-grounding and Y^-1 agree with it. Geometry without physics, then physical checks."""
 from __future__ import annotations
 
 import numpy as np
@@ -16,8 +17,10 @@ from sim_workers.grounded_world import GroundedWorld, act
 
 SPEC = ContainerSpec()
 N = SPEC.n_blocks
-# The largest size two columns hold: half the tray beside half the slot gap (48.5 mm).
+# The largest size Y piles an empty tray in two columns with: half the tray beside half the
+# slot gap (48.5 mm); the largest two columns hold at all: half the tray (50 mm).
 TWO_COLUMN_MAX = SPEC.inner_half[0] - SPEC.slot_gap / 2
+SIDE_BY_SIDE_MAX = SPEC.inner_half[0]
 C, CYAW = (0.04, -0.03), 0.3          # a moved and turned tray: the layout is in its frame
 
 
@@ -121,12 +124,12 @@ def test_every_stacked_block_lies_inside_the_tray_and_apart(h):
     # Where the pile went: one column on the centre line, or both halves in use.
     centres = (boxes[:, 0, 0] + boxes[:, 1, 0]) / 2
     if two:                                             # each block off the centre line
-        assert np.all(np.abs(centres) >= sizes / 2) and (centres < 0).any() and (centres > 0).any()
+        assert np.all(np.abs(centres) >= sizes / 2 - 1e-12) and (centres < 0).any() and (centres > 0).any()
     else:
         np.testing.assert_allclose(centres, 0.0, atol=1e-12)
 
 
-@pytest.mark.parametrize("s", [0.050, 0.054, 0.060])
+@pytest.mark.parametrize("s", [0.049, 0.054, 0.060])
 def test_large_blocks_pile_in_one_column_on_the_centre_line(s):
     sizes = np.full(N, s)
     config = stacked_by_y(sizes, 3)
@@ -153,6 +156,19 @@ def test_small_blocks_still_pile_in_two_columns(s):
         assert key[2] == pytest.approx(below + SPEC.release_clearance + s - grip_depth(SPEC, s))
 
 
+@pytest.mark.parametrize("s", [0.049, 0.0493, SIDE_BY_SIDE_MAX])
+def test_a_two_column_pile_gets_blocks_over_48_5_mm_against_the_walls(s):
+    """A hypothesis over 48.5 mm adds to the two-column pile the robot built (at a belief
+    of 45 mm) against the walls, in the lower column: the pile there is, inside the tray."""
+    sizes = np.full(N, s)
+    for k, side in enumerate([-1, 1, -1, 1]):
+        pile = stacked_by_y(np.full(N, 0.045), k)
+        key = sm.action_pose(SPEC, sizes, pile, f"stack(r,b{k + 1},c)")
+        local = rotate_z(key[:2] - np.asarray(C), -CYAW)
+        expected = [side * (SPEC.inner_half[0] - s / 2), 0.0] if k else [0.0, 0.0]  # empty: the rule
+        np.testing.assert_allclose(local, expected, atol=1e-15)
+
+
 # -- re-grounding and Y^-1 -----------------------------------------------------------------
 @pytest.mark.parametrize("h", range(len(hypotheses())))
 def test_place_for_sizes_keeps_a_pile_y_built(h):
@@ -163,20 +179,55 @@ def test_place_for_sizes_keeps_a_pile_y_built(h):
         np.testing.assert_allclose(placed.objects[1:k + 1], config.objects[1:k + 1], atol=1e-12)
 
 
-@pytest.mark.parametrize("seen, hypothesis", [(0.045, 0.055), (0.055, 0.045), (0.058, 0.032)])
-def test_place_for_sizes_piles_another_layout_in_the_hypothesis_columns(seen, hypothesis):
+# (seen, hypothesis, columns the hypothesis re-grounds the pile in): the pile's own layout,
+# where the hypothesis' blocks can lie that way; two columns of 55 mm blocks cannot. (Seen
+# at 0.049 Y piles one column, which a 35 mm hypothesis keeps.)
+@pytest.mark.parametrize("seen, hypothesis, two", [(0.045, 0.049, True), (0.045, 0.0495, True),
+                                                   (0.055, 0.045, False), (0.058, 0.032, False),
+                                                   (0.045, 0.055, False), (0.049, 0.035, False)])
+def test_place_for_sizes_keeps_the_piles_layout(seen, hypothesis, two):
     observed = stacked_by_y(np.full(N, seen), 5)
     sizes = np.full(N, hypothesis)
+    assert columns.tray_layout(SPEC, observed, sizes, list(range(5))) is two
     placed = sm.place_for_sizes(SPEC, observed, sizes)
     boxes = tray_boxes(placed, sizes, 5)
     ix, iy = SPEC.inner_half
     assert np.all(np.abs(boxes[:, :, :2]) <= [ix + 1e-12, iy + 1e-12])
     assert sm.symbolic_state(SPEC, placed) == sm.symbolic_state(SPEC, observed)
     tops = sorted(boxes[:, 1, 2])
-    if columns.two_columns(SPEC, sizes):
-        assert tops[-1] <= SPEC.floor_top + 5 * hypothesis + 1e-12
+    if two:                                             # three and two high, side by side
+        assert tops[-1] == pytest.approx(SPEC.floor_top + 3 * hypothesis)
+        centres = (boxes[:, 0, 0] + boxes[:, 1, 0]) / 2
+        assert (centres < -hypothesis / 2 + 1e-12).sum() == 3 and (centres > hypothesis / 2 - 1e-12).sum() == 2
     else:                                               # one column: five blocks high
         assert tops[-1] == pytest.approx(SPEC.floor_top + 5 * hypothesis)
+
+
+def test_y_adds_to_the_pile_there_is_under_every_hypothesis():
+    """The next block goes onto the pile the tray has: a one-column pile of 52 mm blocks
+    gets the block on its top under a 45 mm hypothesis too (not beside it, into the other
+    blocks), and a two-column pile of 45 mm blocks gets it in its lower column under a
+    49.5 mm hypothesis (not on a tower the pile is not). The vectorised Y agrees."""
+    one = stacked_by_y(np.full(N, 0.052), 3)
+    two = stacked_by_y(np.full(N, 0.045), 3)
+    rows = np.array([np.full(N, 0.045), np.full(N, 0.0495), np.full(N, 0.052)])
+    for config, centre in ((one, True), (two, False)):
+        batch = sm.action_poses(SPEC, rows, config, "stack(r,b4,c)")
+        for r, sizes in enumerate(rows):
+            key = sm.action_pose(SPEC, sizes, config, "stack(r,b4,c)")
+            np.testing.assert_array_equal(batch[r], key)
+            local = rotate_z(key[:2] - np.asarray(C), -CYAW)
+            s = sizes[0]
+            if centre:
+                np.testing.assert_allclose(local, 0.0, atol=1e-15)
+                below = SPEC.floor_top + 3 * s
+            elif s <= SIDE_BY_SIDE_MAX:                 # the right column, one block high
+                assert local[0] > s / 2 - 1e-12
+                below = SPEC.floor_top + s
+            else:                                       # 52 mm cannot lie side by side
+                np.testing.assert_allclose(local, 0.0, atol=1e-15)
+                below = SPEC.floor_top + 3 * s
+            assert key[2] == pytest.approx(below + SPEC.release_clearance + s - grip_depth(SPEC, s))
 
 
 def test_y_inverse_reads_a_one_column_pile_of_large_blocks_as_loaded():
@@ -208,3 +259,57 @@ def test_two_large_blocks_stack_into_one_column_in_pybullet():
     assert abs(b1[0] - c[0]) < 0.005 and abs(b2[0] - c[0]) < 0.005
     assert b1[2] == pytest.approx(SPEC.floor_top + s / 2, abs=0.002)
     assert b2[2] == pytest.approx(SPEC.floor_top + 3 * s / 2, abs=0.002)
+
+
+def test_a_world_over_48_5_mm_replays_the_robots_two_column_pile_as_reality_does():
+    """Reality's blocks are 49.3 mm; the robot believes 48 mm and piles four in two columns.
+    The truth's own world re-grounds that pile in two columns (each block against its wall)
+    and its push carries them to goal, as reality's does; under the one-column rule it was
+    a tower of offset blocks that the push toppled, so the belief left the truth (issue 40).
+    A 52 mm world cannot hold two columns: it still predicts the failure."""
+    s, k = 0.0493, 4
+    domain = load("container")
+    truth, belief = {"block_sizes": np.full(N, s)}, {"block_sizes": np.full(N, 0.048)}
+    with GroundedWorld(domain) as world:
+        config = world.reset(domain.initial_configuration(truth), truth)
+        for i in range(k):
+            out = act(world, domain, config, belief, f"pickup(r,b{i + 1},init)")
+            out = act(world, domain, out.configuration, belief, f"stack(r,b{i + 1},c)")
+            config = out.configuration
+        assert {f"at_container(b{i + 1},c)" for i in range(k)} <= out.state
+        real = act(world, domain, config, belief, "push(r,c,init,goal)")
+    delivered = {f"is_in(b{i + 1},goal)" for i in range(k)}
+    assert delivered <= real.state
+    for hypothesis, travels in ((s, True), (0.052, False)):
+        sizes = np.full(N, hypothesis)
+        with GroundedWorld(domain) as world:
+            placed = world.reset(config, {"block_sizes": sizes})
+            tops = placed.objects[1:k + 1, 2] + hypothesis / 2
+            assert tops.max() == pytest.approx(SPEC.floor_top + (2 if travels else k) * hypothesis)
+            out = act(world, domain, placed, belief, "push(r,c,init,goal)")
+        assert (delivered <= out.state) is travels
+
+
+def test_a_counterfactual_push_loads_the_pile_the_belief_builds():
+    """The push probe loads the tray as Y at the believed size piles it (the pile the robot
+    would push), in the true blocks: 49.3 mm blocks under a 48 mm belief in two columns
+    against the walls, under their own size (T*'s probes) in one; 40 mm blocks under a
+    52 mm belief in one."""
+    domain = load("container")
+    from sim_workers.container.probes import loaded_configuration
+
+    def centres(true, believed):
+        sizes = np.full(N, true)
+        config = loaded_configuration(domain, sizes, 4, np.random.default_rng(0),
+                                      None if believed is None else np.full(N, believed))
+        c = config.objects[0, :2]
+        return config.objects[1:5, 0] - c[0], config.objects[1:5, 2]
+
+    x, z = centres(0.0493, 0.048)         # side by side, within 0.7 mm of the walls (jitter)
+    assert np.all(np.abs(x) >= 0.0493 / 2 - 1e-12) and np.all(np.abs(x) <= SPEC.inner_half[0] - 0.0493 / 2 + 1e-12)
+    assert x[0] * x[1] < 0 and x[2] * x[3] < 0
+    assert z.max() == pytest.approx(SPEC.floor_top + 1.5 * 0.0493)
+    for true, believed in ((0.0493, None), (0.040, 0.052)):
+        x, z = centres(true, believed)
+        assert np.all(np.abs(x) < true / 4)
+        assert z.max() == pytest.approx(SPEC.floor_top + 3.5 * true)

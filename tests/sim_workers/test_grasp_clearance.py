@@ -117,11 +117,12 @@ def test_a_perception_error_the_old_opening_lands_a_finger_on_is_held_with_the_c
 def test_the_defaults_and_stored_settings_from_before_it():
     from coordinator.run_config import RunConfig, stored_run_config
 
-    assert load("stack_and_push").spec.grasp_clearance == C and load("container").spec.grasp_clearance == 0.0
-    assert RunConfig(domain="stack_and_push").grasp_clearance is None          # the domain's own
-    assert RunConfig(domain="stack_and_push", grasp_clearance=0.0).options == {"grasp_clearance": 0.0}
-    old = RunConfig(domain="stack_and_push").model_dump()
-    old.pop("grasp_clearance")
-    assert stored_run_config(old).options["grasp_clearance"] == 0.0
+    assert load("stack_and_push").spec.grasp_clearance == C and load("container").spec.grasp_clearance == C
+    for domain in ("stack_and_push", "container"):
+        assert RunConfig(domain=domain).grasp_clearance is None          # the domain's own
+        assert RunConfig(domain=domain, grasp_clearance=0.0).options == {"grasp_clearance": 0.0}
+        old = RunConfig(domain=domain).model_dump()
+        old.pop("grasp_clearance")
+        assert stored_run_config(old).options["grasp_clearance"] == 0.0
     with pytest.raises(ValueError, match="grasp_clearance"):
         RunConfig(domain="stack_and_push", grasp_clearance=0.004, options={"grasp_clearance": 0.006})

@@ -11,6 +11,7 @@ from sim_workers.container import state_mapping as sm
 from sim_workers.domains import load
 
 SPEC = ContainerSpec()
+NARROW = ContainerSpec(grasp_clearance=0.0)
 S = 0.045
 N = SPEC.n_blocks
 UPRIGHT = [0.0, 0.0, 0.0, 1.0]
@@ -132,27 +133,29 @@ def test_domain_symbolic_state_is_the_same_function():
 # -- Y -------------------------------------------------------------------------------------
 @pytest.mark.parametrize("yaw, folded", [(0.0, 0.0), (0.5, 0.5), (1.2, 1.2 - np.pi / 2), (-0.9, -0.9 + np.pi / 2)])
 def test_pickup_pose_scales_with_the_believed_size(yaw, folded):
+    # At 1.15 sides (no clearance), where the opening is the block's alone; the clearance's
+    # room rule (the neighbours' believed reach) is tested in test_grasp_clearance.py.
     slot = SPEC.init_slot(2)
     config = with_objects(base(), b3=(slot[0] + 0.004, slot[1] - 0.003, S / 2, yaw))
     poses = []
     for s in (0.030, 0.045, 0.060):
         sizes = np.full(N, 0.05)
         sizes[2] = s                                       # only b3's belief matters
-        pose = sm.action_pose(SPEC, sizes, config, "pickup(r,b3,init)")
+        pose = sm.action_pose(NARROW, sizes, config, "pickup(r,b3,init)")
         np.testing.assert_allclose(pose[:2], config.objects[3, :2])
-        assert pose[2] == pytest.approx(s - grip_depth(SPEC, s))
+        assert pose[2] == pytest.approx(s - grip_depth(NARROW, s))
         assert pose[3] == pytest.approx(folded)
-        assert pose[4] == pytest.approx(SPEC.open_ratio * s)
+        assert pose[4] == pytest.approx(NARROW.open_ratio * s)
         poses.append(pose)
     poses = np.array(poses)
     # Linear in s: 15 mm more size, 10 mm higher (the fingertips at two thirds of the
     # believed side: the grip deepens with it) and 1.15 x 15 mm wider.
     np.testing.assert_allclose(np.diff(poses[:, 2]), [0.010, 0.010])
-    np.testing.assert_allclose(np.diff(poses[:, 4]), [SPEC.open_ratio * 0.015] * 2)
+    np.testing.assert_allclose(np.diff(poses[:, 4]), [NARROW.open_ratio * 0.015] * 2)
     # The other blocks' beliefs do not move b3's grasp.
     other = np.full(N, 0.03)
     other[2] = 0.045
-    np.testing.assert_array_equal(sm.action_pose(SPEC, other, config, "pickup(r,b3,init)"), poses[1])
+    np.testing.assert_array_equal(sm.action_pose(NARROW, other, config, "pickup(r,b3,init)"), poses[1])
 
 
 def test_pickup_pose_never_below_the_table():
