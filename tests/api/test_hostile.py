@@ -454,7 +454,10 @@ def test_a_returning_idle_session_is_replayed_in_the_background(tmp_path):
     from api.client import TMOCClient
 
     robot = SimulatedReality("container", {"n_blocks": 4}, {"block_sizes": np.full(4, 0.045)})
-    srv = Server(tmp_path / "idle-replay.sqlite", "--session-idle-s", "2", token=None).start()
+    # Idle after 6 s: the robot's own step between two requests (its world acting, in this
+    # process) took over 2 s on a loaded 2-core CI machine, and a 2 s limit then evicted the
+    # session mid-episode, before the test's idle wait (a 409 on the second step).
+    srv = Server(tmp_path / "idle-replay.sqlite", "--session-idle-s", "6", token=None).start()
     try:
         with srv.client() as c:
             obs = robot.start_episode(np.random.default_rng(0))
@@ -466,7 +469,7 @@ def test_a_returning_idle_session_is_replayed_in_the_background(tmp_path):
                 r, _ = act_and_observe(c, sid, robot, step)
                 assert r.status_code == 200, r.text
                 step = r.json()["next"]
-            time.sleep(4.0)                      # idle past 2 s, and the timer (every 1 s) ran
+            time.sleep(10.0)                     # idle past 6 s, and the timer (every 3 s) ran
             t0 = time.perf_counter()
             first = c.get(f"/v1/sessions/{sid}/next")
             assert time.perf_counter() - t0 < 1.0
