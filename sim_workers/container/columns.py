@@ -38,19 +38,23 @@ from .spec import ContainerSpec
 LEFT, RIGHT = 0, 1
 
 
+def _fits_half(spec: ContainerSpec, sizes: np.ndarray, gap: float) -> bool | np.ndarray:
+    """Whether each hypothesis' largest block beside half of `gap` fits in half the tray."""
+    fits = np.max(np.asarray(sizes, dtype=np.float64), axis=-1) + gap / 2 <= spec.inner_half[0]
+    return bool(fits) if np.ndim(fits) == 0 else fits
+
+
 def two_columns(spec: ContainerSpec, sizes: np.ndarray) -> bool | np.ndarray:
     """Whether a hypothesis piles an empty tray in two columns: its largest block beside
     the slot gap fits in half the tray. (n,) sizes -> bool; (N, n) -> (N,) bools, one per
     hypothesis."""
-    fits = np.max(np.asarray(sizes, dtype=np.float64), axis=-1) + spec.slot_gap / 2 <= spec.inner_half[0]
-    return bool(fits) if np.ndim(fits) == 0 else fits
+    return _fits_half(spec, sizes, spec.slot_gap)
 
 
 def side_by_side(spec: ContainerSpec, sizes: np.ndarray) -> bool | np.ndarray:
     """Whether a hypothesis' blocks can lie in two columns at all: its largest block fits in
     half the tray (no gap). (n,) sizes -> bool; (N, n) -> (N,) bools."""
-    fits = np.max(np.asarray(sizes, dtype=np.float64), axis=-1) <= spec.inner_half[0]
-    return bool(fits) if np.ndim(fits) == 0 else fits
+    return _fits_half(spec, sizes, 0.0)
 
 
 def tray_layout(spec: ContainerSpec, config: Configuration, sizes: np.ndarray,
@@ -67,17 +71,21 @@ def tray_layout(spec: ContainerSpec, config: Configuration, sizes: np.ndarray,
     sz = np.asarray(sizes, dtype=np.float64)
     if not inside:
         return two_columns(spec, sz)
-    c = config.objects[0]
-    local_x = np.array([abs(rotate_z(config.objects[1 + j, :2] - c[:2], -yaw_of(c[3:]))[0]) for j in inside])
-    beside = np.any(local_x > sz[..., inside] / 4, axis=-1)
+    off = np.abs([tray_x(config, config.objects[1 + j]) for j in inside])
+    beside = np.any(off > sz[..., inside] / 4, axis=-1)
     out = beside & side_by_side(spec, sz)
     return bool(out) if np.ndim(out) == 0 else out
 
 
+def tray_x(config: Configuration, p: np.ndarray) -> float:
+    """A point's x in the tray's frame (along the axis its columns stand side by side on)."""
+    c = config.objects[0]
+    return float(rotate_z(p[:2] - c[:2], -yaw_of(c[3:]))[0])
+
+
 def side_of(config: Configuration, p: np.ndarray) -> int:
     """The half of the tray (along its x axis) a point is in: LEFT or RIGHT."""
-    c = config.objects[0]
-    return RIGHT if rotate_z(p[:2] - c[:2], -yaw_of(c[3:]))[0] > 0 else LEFT
+    return RIGHT if tray_x(config, p) > 0 else LEFT
 
 
 def column_of(config: Configuration, p: np.ndarray, two: bool) -> int:
