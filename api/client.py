@@ -194,10 +194,12 @@ class RobotSession:
         return self.pending
 
     def observe(self, configuration: dict, *, state: list[str] | None = None,
-                measurements: list[float] | None = None, retries: int = 3) -> dict:
-        """Report what the robot observed after executing the pending step. The body echoes
-        the step's action and step_id, so a retry after a lost reply gets the same reply
-        and changes nothing."""
+                measurements: list[float] | None = None, joint_positions: list[float] | None = None,
+                retries: int = 3) -> dict:
+        """Report what the robot observed after executing the pending step (an arm: with the
+        joints it measured, from which the next step is planned). The body echoes the step's
+        action and step_id, so a retry after a lost reply gets the same reply and changes
+        nothing."""
         if self.pending is None:
             raise TMOCError(409, "no pending step: start an episode first")
         body: dict = {"action": self.pending["action"], "step_id": self.pending["step_id"],
@@ -206,6 +208,8 @@ class RobotSession:
             body["state"] = state
         if measurements is not None:
             body["measurements"] = measurements
+        if joint_positions is not None:
+            body["joint_positions"] = [float(q) for q in joint_positions]
         for attempt in range(retries + 1):
             try:
                 reply = self.client._call("POST", f"/v1/sessions/{self.id}/observations", json=body)

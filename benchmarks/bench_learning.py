@@ -28,12 +28,17 @@ sweep.md and sweep.csv, and printed last.
         # the particles in one engine, reality in the other (issue 27's cross-engine sweep)
     python benchmarks/bench_learning.py --rejudge runs/bl-old --t-star-from runs/bl
         # an earlier sweep's runs judged again against another sweep's T* caches (no run)
+    python benchmarks/bench_learning.py --rejudge runs/bl --reference
+        # ... and each run against its exact posterior (re-filtered offline; sharpness)
 
 Each domain's runs (with their step records, runs/<truth>/<r>.steps.jsonl), T* caches and
 sweep.{md,json,csv,png} go to OUT/<domain>/; a run that is there with the same settings is
 reused with --resume. --rejudge takes the seeds, scale and probe trials of the sweep it
 rejudges (and of --t-star-from's) from their sweep.json unless flags say otherwise; a sweep
-from before step records were kept has no failure figures (shown as -).
+from before step records were kept has no failure figures (shown as -). --reference re-filters
+each run offline on an exact grid over the prior (coordinator/experiments/reference.py; about
+2 min of 2 cores per container run of 4 episodes), caches it as runs/<truth>/<r>.reference.json
+and adds sharpness (posterior std over the exact posterior's: median, p90, share <= 1.5x).
 """
 from __future__ import annotations
 
@@ -164,6 +169,11 @@ def main(argv=None) -> int:
                     help="write DIR's sweep files again from its run files (no run) ...")
     ap.add_argument("--t-star-from", default=None, metavar="DIR",
                     help="... with the T* caches of this sweep (default: DIR's own)")
+    ap.add_argument("--reference", action="store_true",
+                    help="judge every run against its exact posterior too (each run re-filtered "
+                         "offline on a grid over the prior, cached beside its run file): sharpness")
+    ap.add_argument("--reference-grid", type=int, default=81, metavar="CELLS",
+                    help="cells of the reference's grid and of its refinement (default 81)")
     args = ap.parse_args(argv)
     if args.rejudge:
         return rejudge(args)
@@ -183,6 +193,8 @@ def main(argv=None) -> int:
             spec.settings = [replace(spec.settings[i], seed_index=i) for i in picked]
         t0 = time.perf_counter()
         done = ex.execute(spec, out / domain, resume=args.resume, progress=False)
+        if args.reference:
+            done = _with_references(spec, out / domain, out / domain, args)
         data = json.loads(Path(done["json"]).read_text())
         combined[domain] = {"summary": data["summary"], "wall_s": time.perf_counter() - t0,
                             "seeds": spec.runs, "probe_trials": spec.probe_trials}
@@ -214,11 +226,31 @@ def main(argv=None) -> int:
     return 0
 
 
+def _t_stars(spec, source: Path) -> dict:
+    """The sweep's T* records from `source`'s caches (exit naming the one missing)."""
+    from coordinator.experiments.true_T import cached_true_T, t_star_files
+
+    t_stars = {}
+    for name, params in dict(t_star_files(spec).values()).items():
+        t_stars[name] = cached_true_T(source, params, name)
+        if t_stars[name] is None:
+            raise SystemExit(f"bench_learning: no T* {name} in {source} for these settings")
+    return t_stars
+
+
+def _with_references(spec, out: Path, source: Path, args) -> dict:
+    """The sweep's files written again with every run's exact-posterior reference
+    (``sweep.sweep_references``, computed once and cached per run): sharpness."""
+    from coordinator.experiments.sweep import sweep_references, write_sweep
+
+    refs = sweep_references(spec, out, grid=args.reference_grid, progress=print)
+    return write_sweep(spec, out, _t_stars(spec, source), refs)
+
+
 def rejudge(args) -> int:
     """Judge an earlier sweep's runs against T* caches (its own or another sweep's), so that
     a before/after comparison uses one reference."""
     from coordinator.experiments.sweep import write_sweep
-    from coordinator.experiments.true_T import cached_true_T, t_star_files
 
     for domain in [d.strip() for d in args.domains.split(",") if d.strip()]:
         out = Path(args.rejudge) / domain
@@ -239,12 +271,10 @@ def rejudge(args) -> int:
         if args.truths:
             spec.settings = [replace(spec.settings[int(i)], seed_index=int(i))
                              for i in args.truths.split(",") if i.strip()]
-        t_stars = {}
-        for name, params in dict(t_star_files(spec).values()).items():
-            t_stars[name] = cached_true_T(source, params, name)
-            if t_stars[name] is None:
-                raise SystemExit(f"bench_learning: no T* {name} in {source} for these settings")
-        done = write_sweep(spec, out, t_stars)
+        if args.reference:
+            done = _with_references(spec, out, source, args)
+        else:
+            done = write_sweep(spec, out, _t_stars(spec, source))
         print(f"## {domain} (rejudged against {source})\n")
         print(Path(done["md"]).read_text())
     return 0

@@ -121,24 +121,28 @@ class Shard:
         out["node"] = self.where()
         return out
 
-    def probe_rows(self, jobs: list, truths: list[dict], belief: dict, seeds: np.ndarray) -> dict:
+    def probe_rows(self, jobs: list, truths: list[dict], belief: dict, seeds: np.ndarray, arm=None) -> dict:
         """Counterfactual trials (issue 40): for each row m (its truth by L's names, and
         its seed), one trial of every job (probe action, load) with Y at `belief`, each in
         a freshly built world; trial m of every job replays the same seeded world (the
         common random numbers the domains' T* estimates rely on). Returns ``successes``
         (M, J) int8: 1 a success, 0 a failure, -1 a context the probe could not reach;
-        ``node`` (where it ran)."""
+        ``node`` (where it ran). `arm`: a factory of the arm that does each trial's actions
+        (``robots.acting.arm_moves``: the run's robot, planned as the session plans it);
+        None: the floating gripper."""
         from .probe import trial_by_names
+        from .robots.acting import arm_moves
 
         opts = dict(self.options)
         n_blocks = int(opts.pop("n_blocks", self.domain.n_objects))
         out = np.zeros((len(truths), len(jobs)), dtype=np.int8)
-        for m, (truth, seed) in enumerate(zip(truths, np.asarray(seeds).tolist())):
-            for j, (action, load_k) in enumerate(jobs):
-                rng = np.random.default_rng(np.random.SeedSequence(int(seed)))
-                ok = trial_by_names(action, int(load_k), rng, domain=self.domain_name,
-                                    n_blocks=n_blocks, options=opts, truth=truth, belief=belief)
-                out[m, j] = -1 if ok is None else int(ok)
+        with arm_moves(arm):
+            for m, (truth, seed) in enumerate(zip(truths, np.asarray(seeds).tolist())):
+                for j, (action, load_k) in enumerate(jobs):
+                    rng = np.random.default_rng(np.random.SeedSequence(int(seed)))
+                    ok = trial_by_names(action, int(load_k), rng, domain=self.domain_name,
+                                        n_blocks=n_blocks, options=opts, truth=truth, belief=belief)
+                    out[m, j] = -1 if ok is None else int(ok)
         return {"successes": out, "node": self.where()}
 
     def where(self) -> dict:

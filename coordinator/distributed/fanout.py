@@ -372,16 +372,18 @@ class ShardPool:
         out["reruns"] = reruns
         return out
 
-    def probe_rows(self, jobs: list, truths: list[dict], belief: dict, seeds: np.ndarray) -> dict:
+    def probe_rows(self, jobs: list, truths: list[dict], belief: dict, seeds: np.ndarray, arm=None) -> dict:
         """Counterfactual trials of every job for every row (``Shard.probe_rows``), the rows
         split over the shards as particles are; ``successes`` (M, J) in row order (1, 0, or
-        -1: not reached), the same on any split (each trial has its own seed and a freshly built world)."""
+        -1: not reached), the same on any split (each trial has its own seed and a freshly built world).
+        `arm`: a factory of the arm that does the trials' actions, sent to every shard."""
         jobs = [(str(a), int(k)) for a, k in jobs]
         seeds = np.asarray(seeds, dtype=np.int64)
+        args = (jobs, truths, belief, seeds) + (() if arm is None else (arm,))
         if self._local is not None:
-            parts = [self._local.probe_rows(jobs, truths, belief, seeds)]
+            parts = [self._local.probe_rows(*args)]
         else:
-            parts, _ = self._fan_out_slices(len(truths), "probe_rows", (jobs, truths, belief, seeds), (1, 3))
+            parts, _ = self._fan_out_slices(len(truths), "probe_rows", args, (1, 3))
         self.timings["calls"] += 1
         return {"successes": np.concatenate([p["successes"] for p in parts])}
 

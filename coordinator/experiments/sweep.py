@@ -352,6 +352,61 @@ def _x(row: dict) -> float:
     return row["truth_value"]
 
 
+def reference_path(out: Path, setting: Setting, r: int) -> Path:
+    """Where run `r`'s exact-posterior reference is kept: beside its run file."""
+    return Path(out) / "runs" / setting.key / f"{r}.reference.json"
+
+
+def sweep_references(spec: Spec, out: Path, *, grid: int = 81, refine: str = "final",
+                     progress=None) -> dict:
+    """{(setting key, run): the exact posterior per entry of L} for every run of the sweep
+    that has step records (``reference.reference_posterior``: each run re-filtered offline,
+    its steps re-simulated for every row of an exact grid over the prior), cached as
+    ``runs/<key>/<r>.reference.json`` and reused while its grid and refinement match: what
+    ``write_sweep``'s `references` takes (the sharpness figures). `progress(line)` hears
+    one line per run."""
+    import shutil
+    import tempfile
+
+    from .reference import entries, reference_posterior
+
+    found = {}
+    for s in spec.settings:
+        for r in range(spec.runs):
+            steps, cache = steps_path(out, s, r), reference_path(out, s, r)
+            if not steps.exists():
+                continue
+            ref = None
+            if cache.exists():
+                kept = json.loads(cache.read_text())
+                if kept.get("grid") == grid and kept.get("refine") == refine:
+                    ref = kept["reference"]
+            if ref is None:
+                # the reference reads a `tmoc run --out` directory: the run file and its steps
+                with tempfile.TemporaryDirectory() as tmp:
+                    shutil.copyfile(run_path(out, s, r), Path(tmp) / "result.json")
+                    shutil.copyfile(steps, Path(tmp) / "steps.jsonl")
+                    ref = _jsonable(reference_posterior(tmp, grid=grid, refine=refine))
+                write_atomic(cache, json.dumps({"grid": grid, "refine": refine, "reference": ref}))
+                if progress is not None:
+                    progress(f"reference {s.key} run {r}: {ref['wall_s']:.0f} s")
+            found[(s.key, r)] = entries(ref)
+    return found
+
+
+def _jsonable(value):
+    """numpy arrays and scalars as lists and floats, recursively."""
+    if isinstance(value, dict):
+        return {k: _jsonable(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_jsonable(v) for v in value]
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    if isinstance(value, np.generic):
+        return value.item()
+    return value
+
+
 def write_sweep(spec: Spec, out: Path, t_stars: dict, references: dict | None = None) -> dict:
     """DIR/sweep.{json,csv,md,png} from the run files (and step records) and the truths'
     T*; `references` as ``sweep_rows``'s (the exact-posterior judge's, optional)."""

@@ -14,6 +14,11 @@ offers Y's alternatives for the action (``pose_alternatives``: a cube's other gr
 a neighbour is within the fingers' reach): then the chosen pose is simulated, and where
 some world predicts it fails, each alternative too (issue 40's "Y's alternatives are
 simulated, not ruled out").
+
+With an arm, a candidate the arm cannot reach (no branch of the inverse within the joint
+limits, at the key pose or the pre-pose) is predicted to fail in every world
+(``reach_gated``) and is never simulated; the mode rule takes its mode among the particles
+whose own pose the arm reaches (issue 41).
 """
 from __future__ import annotations
 
@@ -22,10 +27,11 @@ from typing import Callable
 import numpy as np
 
 from sim_workers.configuration import Configuration
+from sim_workers.robots import Unreachable
 
 from ..particle_filter.belief import Belief, heaviest_class, mode_mask
 
-__all__ = ["MAX_MODES", "pose_candidates", "choose_pose", "real_pose", "mode_scale"]
+__all__ = ["MAX_MODES", "pose_candidates", "choose_pose", "reach_gated", "real_pose", "mode_scale"]
 
 # Modes whose poses are candidates. Each costs N particle-actions per real action while the
 # belief is split; beyond three the remaining weight of a 16-32 particle belief is a few
@@ -109,6 +115,50 @@ def choose_pose(candidates: list[np.ndarray], success: Callable[..., np.ndarray]
     return chosen
 
 
+def reach_gated(success: Callable[..., np.ndarray], reaches: Callable[[np.ndarray], bool] | None,
+                n: int) -> Callable[..., np.ndarray]:
+    """`success` where the robot can reach the pose, and 0 in every world where it cannot
+    (issue 41: a pose no branch of the arm's inverse reaches within the joint limits is not
+    offered): an unreachable candidate or alternative then never beats a reachable one, and
+    costs no simulation. `reaches` None: every pose is reachable (the floating gripper)."""
+    if reaches is None:
+        return success
+
+    def gated(x: np.ndarray, rows: np.ndarray | None = None) -> np.ndarray:
+        if reaches(x):
+            return success(x, rows) if rows is not None else success(x)
+        return np.zeros(n if rows is None else len(rows))
+    return gated
+
+
+def arm_reaches(session, config: Configuration, action: str) -> Callable[[np.ndarray], bool] | None:
+    """Whether the session's arm reaches a candidate key pose of `action` and its pre-pose
+    (some branch of the inverse within the joint limits: ``Arm.joints_for``); None for the
+    floating gripper, which reaches everywhere."""
+    arm = getattr(session, "robot", None)
+    if arm is None:
+        return None
+    domain = session.domain
+
+    def reaches(x: np.ndarray) -> bool:
+        try:
+            for pose in (x, domain.pre_pose(config, action, x)):
+                arm.joints_for(*np.asarray(pose, dtype=np.float64)[:4])
+        except Unreachable:
+            return False
+        return True
+    return reaches
+
+
+def _reachable_rows(reaches: Callable[[np.ndarray], bool] | None, poses: np.ndarray) -> np.ndarray:
+    """Per particle, whether the arm reaches its own pose x_i (all True without an arm, or
+    where it reaches none: then the arm's step names the infeasibility)."""
+    if reaches is None:
+        return np.ones(len(poses), dtype=bool)
+    ok = np.array([reaches(x) for x in poses], dtype=bool)
+    return ok if ok.any() else np.ones(len(poses), dtype=bool)
+
+
 # ----------------------------------------------------------------------------- the session's step 2
 def real_pose(session, config: Configuration, action: str) -> tuple[np.ndarray, np.ndarray | None]:
     """Step 2 of the loop for `session`'s agent: the real pose x and (for TMOC) each
@@ -123,8 +173,10 @@ def real_pose(session, config: Configuration, action: str) -> tuple[np.ndarray, 
             return view.weighted_mean(poses, angular=(3,)), poses
         if rule == "success" and session.shard_pool is not None:
             return _most_successful_pose(session, config, action, view, cols, poses), poses
-        keep = mode_mask(view.particles[:, cols], view.weights, session.config.mode_bandwidth,
-                         scale=mode_scale(session.low, session.high)[cols])
+        # the mode among the particles whose pose the arm reaches (issue 41; all without one)
+        reach = _reachable_rows(arm_reaches(session, config, action), poses)
+        keep = mode_mask(view.particles[:, cols], view.weights * reach, session.config.mode_bandwidth,
+                         scale=mode_scale(session.low, session.high)[cols]) & reach
         keep = heaviest_class(session.domain.pose_classes(view.particles, config, action), view.weights, keep)
         sub = Belief(view.particles[keep], view.log_weights[keep], view.low, view.high)
         return sub.weighted_mean(poses[keep], angular=(3,)), poses
@@ -159,9 +211,10 @@ def _most_successful_pose(session, config: Configuration, action: str, view: Bel
     the action (the domain's) judged too."""
     domain = session.domain
     classes = domain.pose_classes(view.particles, config, action)
+    reaches = arm_reaches(session, config, action)
     cands = pose_candidates(view.particles[:, cols], view.weights, poses, classes,
                             session.config.mode_bandwidth, mode_scale(session.low, session.high)[cols])
-    if len(cands) == 1 and not session.config.pose_alternatives:
+    if len(cands) == 1 and not session.config.pose_alternatives and (reaches is None or reaches(cands[0])):
         return cands[0]
     expected = session.task.apply(session.state, action)
     start = config.to_array()
@@ -184,4 +237,6 @@ def _most_successful_pose(session, config: Configuration, action: str, view: Bel
             return domain.pose_alternatives(config, action, x, view.particles)
         if len(cands) == 1 and not alternatives(cands[0]):
             return cands[0]             # nothing for the worlds to judge: no simulation
-    return choose_pose(cands, success, view.weights, alternatives)
+    if len(cands) == 1 and alternatives is None:
+        return cands[0]                 # unreachable, and nothing else: the arm's step says why
+    return choose_pose(cands, reach_gated(success, reaches, len(view.particles)), view.weights, alternatives)

@@ -15,6 +15,7 @@ from __future__ import annotations
 import time
 from contextlib import contextmanager
 from dataclasses import dataclass
+from functools import partial
 from typing import Callable, Iterator
 
 import numpy as np
@@ -44,6 +45,7 @@ from .step_record import step_record
 from .transit import plan_pre_pose_transit, transit_checker
 from planner.motion import MotionPlanningError
 from .arm_motion import belief_scene_size, contact_time, plan_arm_step, robot_of, start_joints
+from .arm_trials import ArmForTrials
 from sim_workers.robots import Unreachable
 from sim_workers.robots.motion import ArmMotion
 from ..transition.transition_model import TransitionModel, transition_table
@@ -203,10 +205,18 @@ class Session:
             self.shard_pool, self.domain, self.L.names, k, self.belief.particles, self.belief.weights,
             row_properties(self.L.names, np.asarray(mean, dtype=np.float64), k), m, self.n_blocks,
             self.task.contexts(self.n_blocks), np.random.SeedSequence(self.config.seed, spawn_key=key),
-            self.episode, refresh, (mean, std), should_stop=self._should_stop)
+            self.episode, refresh, (mean, std), should_stop=self._should_stop, arm=self._trial_arm())
         self.stats.counterfactual_trials += self.counterfactual.trials
         self.stats.counterfactual_s += self.counterfactual.wall_s
         self.transition = self._transition_model()
+
+    def _trial_arm(self):
+        """The factory of the arm that does the counterfactual trials' actions: the run's arm
+        (planned as its steps are, ``arm_trials.ArmForTrials``), or None for the floating
+        gripper."""
+        if self.robot is None:
+            return None
+        return partial(ArmForTrials, self.config.robot)
 
     def transition_table(self) -> list[dict]:
         """T per context, for people (``coordinator.transition.transition_model.transition_table``)."""

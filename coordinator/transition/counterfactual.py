@@ -151,13 +151,17 @@ def simulate(pool, physics, names, per_object: int, rows: np.ndarray, weights: n
              believed: dict[str, float], m: int, n_objects: int, contexts,
              seed: np.random.SeedSequence, episode: int, refresh: int = 0,
              marginals: tuple[np.ndarray, np.ndarray] | None = None,
-             should_stop: Callable[[], bool] | None = None) -> Counterfactual:
+             should_stop: Callable[[], bool] | None = None, arm=None) -> Counterfactual:
     """The snapshot of M = `m` rows drawn from the belief (`rows`, `weights`) with Y at
     `believed`, on `pool`'s shards (``ShardPool.probe_rows``); `marginals`: the belief's mean
     and std per column of L, kept for the redraw test. With `should_stop` the contexts go to
     the shards one at a time and it is polled before each (``SnapshotStopped``): a snapshot
     is tens of seconds of physics, and a cancel must not wait for all of it. The counts are
-    the same either way (each trial's world is seeded by its row alone)."""
+    the same either way (each trial's world is seeded by its row alone). `arm`: a factory of
+    the run's arm (``coordinator.loop.arm_trials.ArmForTrials``), which then does every
+    trial's actions as the session's steps do them: a context the arm cannot do (no branch
+    reaches it, no path clears the scene) fails in the snapshot, so T knows it before the
+    robot is asked to try (issue 41); None: the floating gripper."""
     t0 = time.perf_counter()
     mean, std = (None, None) if marginals is None else (np.array(marginals[0]), np.array(marginals[1]))
     jobs = physics.counterfactual_jobs(n_objects)
@@ -167,7 +171,7 @@ def simulate(pool, physics, names, per_object: int, rows: np.ndarray, weights: n
     picked = draw_rows(weights, m, rng)
     truths = [row_properties(names, rows[i], per_object) for i in picked]
     trial_seeds = rng.integers(0, 2**63 - 1, size=m, dtype=np.int64)
-    outcome = _probe(pool, jobs, truths, believed, trial_seeds, should_stop)
+    outcome = _probe(pool, jobs, truths, believed, trial_seeds, should_stop, arm)
     reached = (outcome >= 0).sum(axis=0)
     wins = (outcome == 1).sum(axis=0)
     keys = [(a, int(k)) for a, k in jobs]
@@ -181,14 +185,15 @@ def simulate(pool, physics, names, per_object: int, rows: np.ndarray, weights: n
 
 
 def _probe(pool, jobs: list, truths: list[dict], believed: dict, seeds: np.ndarray,
-           should_stop: Callable[[], bool] | None) -> np.ndarray:
+           should_stop: Callable[[], bool] | None, arm=None) -> np.ndarray:
     """(M, J) outcomes of every job for every row: one call, or one per job polling
     `should_stop` before each."""
+    extra = {} if arm is None else {"arm": arm}
     if should_stop is None:
-        return np.asarray(pool.probe_rows(jobs, truths, believed, seeds)["successes"])
+        return np.asarray(pool.probe_rows(jobs, truths, believed, seeds, **extra)["successes"])
     columns = []
     for job in jobs:
         if should_stop():
             raise SnapshotStopped(f"counterfactual snapshot stopped after {len(columns)} of {len(jobs)} contexts")
-        columns.append(np.asarray(pool.probe_rows([job], truths, believed, seeds)["successes"]))
+        columns.append(np.asarray(pool.probe_rows([job], truths, believed, seeds, **extra)["successes"]))
     return np.concatenate(columns, axis=1)

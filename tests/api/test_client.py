@@ -73,3 +73,18 @@ def test_the_robot_loop_example_runs_a_session_start_to_finish(server, tmp_path)
     with TMOCClient(server.base, token=TOKEN) as tmoc:
         closed = tmoc._call("GET", f"/v1/sessions/{out['session']}")
         assert closed["status"] == "closed" and closed["episodes_done"] == 2
+
+
+def test_the_robot_loop_example_drives_a_ur5e_from_its_joint_trajectories(server, tmp_path):
+    """Issue 41: the simulated UR5e runs each step's FollowJointTrajectory goal from the JSON
+    alone (its base from GET /v1/domains) and posts the joints it reached; the session
+    plans the next step from them and learns the size."""
+    script = REPO / "docs" / "examples" / "robot_loop.py"
+    proc = subprocess.run([sys.executable, str(script), "--url", server.base, "--token", TOKEN, "--robot", "ur5e",
+                           "--episodes", "1", "--particles", "8", "--max-steps", "6", "--true-size", "0.045"],
+                          cwd=tmp_path, capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
+    out = json.loads(proc.stdout.strip().splitlines()[-1])
+    assert out["robot"] == "ur5e" and len(out["utilities"]) == 1
+    assert abs(out["posterior_size_mm"] - out["true_size_mm"]) < 3 * max(out["posterior_std_mm"], 0.5), out
+    assert "FAILED" not in proc.stdout.split("episode 0 step 0")[1].splitlines()[0]   # the first pickup held

@@ -196,3 +196,39 @@ def test_a_stop_during_the_snapshot_takes_effect_between_its_contexts():
     assert a["counterfactual_trials"] == b["counterfactual_trials"] > 0
     for key in ("utility", "plans", "failures", "posterior"):
         assert a[key] == b[key], key
+
+
+def test_the_runs_arm_does_the_snapshots_trials():
+    """Issue 41: a context the run's arm cannot do is failed in the snapshot, so T knows it
+    before the robot is asked. Stack-and-push's push with the fingers closed: the UR5e's
+    wrist meets the tower on every branch, the floating gripper pushes it (the trials of
+    ``test_arm_trials``); the snapshot's pushes say so for each robot."""
+    from functools import partial
+
+    from planner.stack_and_push import TASK as SP_TASK
+    from sim_workers.domains import load as load_world
+    from coordinator.loop.arm_trials import ArmForTrials
+    from coordinator.transition.counterfactual import simulate
+
+    physics = load_world("stack_and_push", n_blocks=3, push_open=False)
+    pool = ShardPool("stack_and_push", {"n_blocks": 3, "push_open": False}, n_shards=0)
+    try:
+        def snapshot(arm):
+            return simulate(pool, physics, ["size"], 1, np.array([[0.045]]), np.array([1.0]), {"size": 0.045},
+                            1, 3, SP_TASK.contexts(3), np.random.SeedSequence(0), 0, arm=arm).counts
+        gripper, ur5e = snapshot(None), snapshot(partial(ArmForTrials, "ur5e"))
+    finally:
+        pool.close()
+    assert gripper[("push", 3)] == (1.0, 1.0)
+    assert ur5e[("push", 3)] == (0.0, 1.0)
+    assert ur5e[("pickup", 0)] == (1.0, 1.0)         # what the arm can do, it does
+
+
+def test_a_session_with_an_arm_gives_its_snapshot_the_arm():
+    pool = ShardPool("container", {"n_blocks": 2}, n_shards=0)
+    try:
+        arm = Session(RunConfig(n_blocks=2, particles=2, robot="ur5e", seed=1), pool)._trial_arm()
+        gripper = Session(RunConfig(n_blocks=2, particles=2, seed=1), pool)._trial_arm()
+    finally:
+        pool.close()
+    assert gripper is None and arm.func.__name__ == "ArmForTrials" and arm.args == ("ur5e",)
